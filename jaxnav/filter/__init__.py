@@ -1,0 +1,1 @@
+"""jaxnav.filter"""

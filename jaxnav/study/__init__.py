@@ -1,0 +1,1 @@
+"""jaxnav.study"""
