@@ -151,7 +151,7 @@ def euler_from_quat(q_b_l):
 
 
 def attitude_error(C_hat_b_l, C_b_l):
-    """Small-angle attitude error eps (ENU) with C_hat = (I - [eps x]) C: eps = -rotvec(C_hat C^T)."""
+    """Attitude error eps (ENU) with C_hat = (I - [eps x]) C, taken as eps = -rotvec(C_hat C^T)."""
     return -rotvec_from_dcm(C_hat_b_l @ C_b_l.T)
 
 

@@ -32,7 +32,7 @@ _LLH_ITERATIONS = 8
 
 
 def radii(lat_rad):
-    """Meridian and prime-vertical radii: R_M = a(1-e^2)/(1-e^2 s^2)^1.5, R_N = a/sqrt(1-e^2 s^2)."""
+    """Meridian and prime-vertical radii: R_M = a(1-e^2)/(1-e^2 s^2)^1.5, R_N = a/(1-e^2 s^2)^.5."""
     s2 = jnp.sin(lat_rad) ** 2
     w = jnp.sqrt(1.0 - E2_WGS84 * s2)
     r_n = A_WGS84 / w
@@ -57,7 +57,7 @@ def gravity_enu(llh):
 
 
 def llh_to_ecef(llh):
-    """Geodetic to ECEF: x = (R_N+h) cos(lat) cos(lon), y = ... sin(lon), z = (R_N(1-e^2)+h) sin(lat)."""
+    """Geodetic to ECEF: x, y = (R_N+h) cos(lat) (cos, sin)(lon), z = (R_N(1-e^2)+h) sin(lat)."""
     lat, lon, h = llh[0], llh[1], llh[2]
     _, r_n = radii(lat)
     cl = jnp.cos(lat)

@@ -81,7 +81,8 @@ INS15 = StateLayout(
 #: 21 states: INS15 + accelerometer and gyro scale factors (GM) (S001 eq 14, S004 eq 15).
 INS21 = INS15.extend(("accel_scale", 3), ("gyro_scale", 3))
 #: 27 states (S003 eq 2): INS15 with GM bias drifts, + turn-on biases (random constants) + scale
-#: factors. Order as printed: pos, vel, att, b_a drift, b_g drift, b_a turn-on, b_g turn-on, S_a, S_g.
+#: factors. Order as printed: pos, vel, att, b_a drift, b_g drift, b_a turn-on, b_g turn-on,
+#: S_a, S_g.
 INS27 = INS15.extend(
     ("accel_bias_ton", 3), ("gyro_bias_ton", 3), ("accel_scale", 3), ("gyro_scale", 3)
 )
