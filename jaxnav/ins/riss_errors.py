@@ -1,0 +1,317 @@
+"""RISS error-state models: F, G, Qc for layouts RISS9 (S002) and RISS16 (S000), and feedback.
+
+Error convention (filter/states.py): dx = estimated - true. Position errors are geodetic
+(rad, rad, m), velocity errors ENU [m/s], the azimuth error is in rad. The sensor states are the
+errors of the *corrected* quantities the mechanization uses:
+- ``gyro_bias_z``, ``accel_bias_x/y``: estimated bias - true bias (they are subtracted from the
+  raw rates, so the used rate is wrong by -dx and A' gains +d b_z: F[azimuth, gyro_bias_z] = +1),
+- ``odo_accel``, ``odo_speed``: used odometer acceleration / speed - true (F[vel, odo_accel] =
+  (sinA cosp, cosA cosp, sinp), F[odo_speed, odo_accel] = 1),
+- ``roll``, ``pitch``: estimated - true angle; ``clock_bias`` [m], ``clock_drift`` [m/s].
+
+Continuous model: dx' = F dx + G w, E[w(t) w(s)^T] = Qc delta(t - s); G has one unit entry per
+noise source (names in ``RISS9_NOISE`` / ``RISS16_NOISE``) and Qc is the diagonal of the sources'
+PSDs in the driven state's units^2 / s. First-order Gauss-Markov states follow
+x' = -beta x + sqrt(2 beta sigma^2) w (S000 eqs 4.30-4.31; SEED_SPEC 1.6), i.e. PSD 2 beta sigma^2.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from jaxnav.attitude import wrap_angle
+from jaxnav.filter.states import RISS9, RISS16, StateLayout
+from jaxnav.geodesy import C_LIGHT, OMEGA_E, radii
+from jaxnav.ins.riss import (
+    RissInput,
+    RissSensorErrors,
+    RissState,
+    correct_input,
+    zero_sensor_errors,
+)
+
+_DEG = jnp.pi / 180.0
+_MG = 9.80665e-3  # 1 milli-g [m/s^2]
+
+# Receiver-clock Allan coefficients of S001 eq 16 (after Brown & Hwang) and its inflation K.
+_CLOCK_H0 = 2.0e-19
+_CLOCK_H_M2 = 2.0e-20
+_CLOCK_K = 4.0
+
+#: Noise sources (columns of G) of each layout, each driving the state of the same name.
+RISS9_NOISE = ("odo_accel", "gyro_bias_z")
+RISS16_NOISE = (
+    "odo_accel",
+    "gyro_bias_z",
+    "clock_bias",
+    "clock_drift",
+    "roll",
+    "pitch",
+    "accel_bias_x",
+    "accel_bias_y",
+    "odo_speed",
+)
+
+
+class RissNoiseParams(eqx.Module):
+    """Stochastic model of the RISS sensor-error states (GM: beta = 1/tau [1/s], sigma steady).
+
+    No seed gives a number for any RISS GM state (SEED_SPEC 1.5.2, 1.6, "Not specified"); the
+    defaults below are *chosen* for the MEMS RISS of S000 (Crossbow IMU300CC + OBD-II speed):
+    - Vertical-gyro bias: sigma 0.01 deg/s, tau 1000 s. The +-2 deg/s turn-on bias (S000 Tab B.1,
+      SEED_SPEC 4 item 18) is removed at start-up; what remains drifts in-run. S000's 60-s
+      complete-outage drifts of 1-6 m at 60-80 km/h imply 0.5 v b t^2 with b ~ 0.005 deg/s, so a
+      1-sigma of 0.01 deg/s covers them; tau is longer than S000's 250-400 s bias convergence,
+      which only makes sense if the bias is nearly constant over that time.
+    - Odometer-acceleration error: sigma 0.005 m/s^2, tau 10 s: about 0.5-1 % (a residual speed
+      scale factor) of a 0.5-1 m/s^2 urban acceleration, correlated over one manoeuvre. Its
+      integral (the speed error) then grows by ~0.17 m/s in 60 s.
+    - Roll and pitch errors: sigma 0.5 deg, tau 5 s: suspension pitch/roll under braking and
+      cornering, which the accelerometer formulas cannot tell from road slope and bank, is of
+      order 0.5-1 deg and lasts one manoeuvre.
+    - Horizontal accelerometer biases: sigma 1 mg, tau 1000 s: the +-30 mg turn-on range
+      (S000 Tab B.1) is removed at start-up; about 1 mg in-run variation for MEMS of that grade.
+    - Odometer-speed error (RISS16 state 16): random walk of PSD (0.01 m/s/sqrt(s))^2, i.e.
+      0.08 m/s in 60 s, letting the speed-bias state follow slow scale-factor changes (tyre
+      pressure, load). OBD-II 1 km/h quantization is white and is not part of this state.
+    - Receiver clock: S001 eq 16, S_f = K c^2 h0 / 2 [m^2/s] and S_g = 2 K pi^2 c^2 h_-2 [m^2/s^3]
+      with h0 = 2e-19, h_-2 = 2e-20, K = 4 (SEED_SPEC 1.6; 0.03595 and 0.14193).
+    ``tactical()`` gives the S002 chapter 5 (SPAN-CPT / KVH1750) variant.
+    """
+
+    gyro_bias_beta_1_s: float = 1.0 / 1000.0
+    gyro_bias_sigma_rad_s: float = 0.01 * _DEG
+    odo_accel_beta_1_s: float = 1.0 / 10.0
+    odo_accel_sigma_m_s2: float = 0.005
+    roll_beta_1_s: float = 1.0 / 5.0
+    roll_sigma_rad: float = 0.5 * _DEG
+    pitch_beta_1_s: float = 1.0 / 5.0
+    pitch_sigma_rad: float = 0.5 * _DEG
+    accel_bias_beta_1_s: float = 1.0 / 1000.0
+    accel_bias_sigma_m_s2: float = 1.0 * _MG
+    odo_speed_rw_psd_m2_s3: float = 0.01**2
+    clock_bias_psd_m2_s: float = _CLOCK_K * C_LIGHT**2 * _CLOCK_H0 / 2.0
+    clock_drift_psd_m2_s3: float = 2.0 * _CLOCK_K * jnp.pi**2 * C_LIGHT**2 * _CLOCK_H_M2
+
+    @classmethod
+    def tactical(cls) -> RissNoiseParams:
+        """S002 ch5 RISS from a SPAN-CPT / KVH1750 (tactical FOG gyro, MEMS accelerometers).
+
+        Gyro-bias sigma 1 deg/h = the CPT bias stability S002 quotes, tau 1 h (chosen); accel
+        bias sigma 0.75 mg = the CPT stability of S000 Tab B.2, tau 1 h (chosen); the odometer,
+        roll/pitch and clock values are those of the default (same vehicle and receiver class).
+        """
+        return cls(
+            gyro_bias_beta_1_s=1.0 / 3600.0,
+            gyro_bias_sigma_rad_s=1.0 * _DEG / 3600.0,
+            accel_bias_beta_1_s=1.0 / 3600.0,
+            accel_bias_sigma_m_s2=0.75 * _MG,
+        )
+
+
+def _gm_psd(beta, sigma):
+    """PSD of the white noise driving a first-order GM of steady-state sigma: 2 beta sigma^2."""
+    return 2.0 * beta * sigma**2
+
+
+def _nav_block(F, layout: StateLayout, state: RissState, w_z_corr, a_od_corr):
+    """Fill the position, velocity and azimuth rows (S002 eqs 5.13-5.20, F1-F8).
+
+    Linearization of riss_rate with the pitch-rate terms neglected (S002) and the radii of
+    curvature held constant in latitude (all seeds). For S000 (4.17-4.29) this adds the
+    corrections of SEED_SPEC 4: the delta-h columns (item 4, from S002's F1/F3/F6), the factor 2
+    in F[vn, ve] (item 3, eq 4.25), the 1/((R_N+h) cos lat) coefficient of eq 4.19 (item 5).
+    """
+    lat, h = state.llh[0], state.llh[2]
+    ve, vn = state.vel_enu[0], state.vel_enu[1]
+    r_m, r_n = radii(lat)
+    rm_h, rn_h = r_m + h, r_n + h
+    t, c = jnp.tan(lat), jnp.cos(lat)
+    sa, ca = jnp.sin(state.azimuth), jnp.cos(state.azimuth)
+    sp, cp = jnp.sin(state.pitch), jnp.cos(state.pitch)
+
+    az_rate = -w_z_corr + OMEGA_E * jnp.sin(lat) + ve * t / rn_h  # S000 eq 4.28
+    daz_dlat = OMEGA_E * c + ve / (c * c * rn_h)  # we cos(lat) + ve sec^2(lat)/(R_N+h)
+    daz_dh = -ve * t / rn_h**2
+    daz_dve = t / rn_h
+
+    lat_i, lon_i, h_i = (layout.sl("pos").start + k for k in range(3))
+    ve_i, vn_i, vu_i = (layout.sl("vel").start + k for k in range(3))
+    az_i, aod_i, bz_i = layout.i("azimuth"), layout.i("odo_accel"), layout.i("gyro_bias_z")
+
+    entries = [
+        # position rows (F1, F2)
+        (lat_i, h_i, -vn / rm_h**2),
+        (lat_i, vn_i, 1.0 / rm_h),
+        (lon_i, lat_i, ve * t / (rn_h * c)),
+        (lon_i, h_i, -ve / (rn_h**2 * c)),
+        (lon_i, ve_i, 1.0 / (rn_h * c)),
+        (h_i, vu_i, 1.0),
+        # east velocity: ve' = a_od sinA cosp + vn A'  (F3, F4, F5)
+        (ve_i, lat_i, vn * daz_dlat),
+        (ve_i, h_i, vn * daz_dh),
+        (ve_i, ve_i, vn * daz_dve),
+        (ve_i, vn_i, az_rate),
+        (ve_i, az_i, a_od_corr * ca * cp),
+        (ve_i, aod_i, sa * cp),
+        (ve_i, bz_i, vn),
+        # north velocity: vn' = a_od cosA cosp - ve A'; F[vn, ve] carries 2 ve tan/(R_N+h)
+        (vn_i, lat_i, -ve * daz_dlat),
+        (vn_i, h_i, -ve * daz_dh),
+        (vn_i, ve_i, -az_rate - ve * daz_dve),
+        (vn_i, az_i, -a_od_corr * sa * cp),
+        (vn_i, aod_i, ca * cp),
+        (vn_i, bz_i, -ve),
+        # up velocity: vu' = a_od sinp
+        (vu_i, aod_i, sp),
+        # azimuth (F6, F7, F8)
+        (az_i, lat_i, daz_dlat),
+        (az_i, h_i, daz_dh),
+        (az_i, ve_i, daz_dve),
+        (az_i, bz_i, 1.0),
+    ]
+    rows = jnp.array([e[0] for e in entries])
+    cols = jnp.array([e[1] for e in entries])
+    vals = jnp.stack([jnp.asarray(e[2], jnp.float64) for e in entries])
+    return F.at[rows, cols].set(vals)
+
+
+def _noise(layout: StateLayout, names, psds):
+    """G (n x m) with a unit entry per source on its state's row, Qc = diag(psds) (m x m)."""
+    G = jnp.zeros((layout.size, len(names)))
+    G = G.at[jnp.array([layout.i(n) for n in names]), jnp.arange(len(names))].set(1.0)
+    return G, jnp.diag(jnp.stack([jnp.asarray(q, jnp.float64) for q in psds]))
+
+
+def riss9_dynamics(
+    state: RissState,
+    inp: RissInput,
+    params: RissNoiseParams,
+    sensor_errors: RissSensorErrors | None = None,
+):
+    """(F, G, Qc) of layout RISS9 (S002 eqs 5.8, 5.12-5.21; SEED_SPEC 1.5.1).
+
+    ``inp`` is the raw input of the latest mechanization step and ``sensor_errors`` the
+    estimates removed from it (the F entries use the corrected w_z and a_od). F(8,8) = -gamma_aod
+    and F(9,9) = -beta_Bz are first-order GM; both are driven by white noise of PSD 2 beta sigma^2.
+    """
+    inp = correct_input(inp, sensor_errors)
+    layout = RISS9
+    F = _nav_block(jnp.zeros((layout.size, layout.size)), layout, state, inp.w_z, inp.a_od)
+    F = F.at[layout.i("odo_accel"), layout.i("odo_accel")].set(-params.odo_accel_beta_1_s)
+    F = F.at[layout.i("gyro_bias_z"), layout.i("gyro_bias_z")].set(-params.gyro_bias_beta_1_s)
+    G, Qc = _noise(
+        layout,
+        RISS9_NOISE,
+        (
+            _gm_psd(params.odo_accel_beta_1_s, params.odo_accel_sigma_m_s2),
+            _gm_psd(params.gyro_bias_beta_1_s, params.gyro_bias_sigma_rad_s),
+        ),
+    )
+    return F, G, Qc
+
+
+def riss16_dynamics(
+    state: RissState,
+    inp: RissInput,
+    params: RissNoiseParams,
+    sensor_errors: RissSensorErrors | None = None,
+):
+    """(F, G, Qc) of layout RISS16 (S000 eqs 4.15-4.43 in its F order, SEED_SPEC 1.5.2 and 4).
+
+    Navigation rows as S002 (S000 items 3-5 corrected). GM states: odometer acceleration, gyro
+    bias, roll, pitch, accelerometer biases; clock bias' = clock drift, both random walks;
+    odo_speed' = odo_accel plus a small random walk. G follows the F order (S000 item 2: the
+    printed G labels are permuted). As in S000, roll, pitch and the accelerometer biases are not
+    coupled to the navigation rows (the pitch column of the velocity rows is neglected).
+    """
+    inp = correct_input(inp, sensor_errors)
+    layout = RISS16
+    p = params
+    F = _nav_block(jnp.zeros((layout.size, layout.size)), layout, state, inp.w_z, inp.a_od)
+    gm = (
+        ("odo_accel", p.odo_accel_beta_1_s),
+        ("gyro_bias_z", p.gyro_bias_beta_1_s),
+        ("roll", p.roll_beta_1_s),
+        ("pitch", p.pitch_beta_1_s),
+        ("accel_bias_x", p.accel_bias_beta_1_s),
+        ("accel_bias_y", p.accel_bias_beta_1_s),
+    )
+    for name, beta in gm:
+        F = F.at[layout.i(name), layout.i(name)].set(-beta)
+    F = F.at[layout.i("clock_bias"), layout.i("clock_drift")].set(1.0)  # S000 F(10,11)
+    F = F.at[layout.i("odo_speed"), layout.i("odo_accel")].set(1.0)  # S000 F(16,8)
+    psd = {
+        "odo_accel": _gm_psd(p.odo_accel_beta_1_s, p.odo_accel_sigma_m_s2),
+        "gyro_bias_z": _gm_psd(p.gyro_bias_beta_1_s, p.gyro_bias_sigma_rad_s),
+        "clock_bias": p.clock_bias_psd_m2_s,
+        "clock_drift": p.clock_drift_psd_m2_s3,
+        "roll": _gm_psd(p.roll_beta_1_s, p.roll_sigma_rad),
+        "pitch": _gm_psd(p.pitch_beta_1_s, p.pitch_sigma_rad),
+        "accel_bias_x": _gm_psd(p.accel_bias_beta_1_s, p.accel_bias_sigma_m_s2),
+        "accel_bias_y": _gm_psd(p.accel_bias_beta_1_s, p.accel_bias_sigma_m_s2),
+        "odo_speed": p.odo_speed_rw_psd_m2_s3,
+    }
+    G, Qc = _noise(layout, RISS16_NOISE, tuple(psd[n] for n in RISS16_NOISE))
+    return F, G, Qc
+
+
+def riss_feedback(
+    state: RissState, dx, layout: StateLayout, sensor_errors: RissSensorErrors | None = None
+):
+    """Closed-loop correction x = x_hat - dx (S002 §5.3, S000; SEED_SPEC 1.7).
+
+    Works for any layout holding RISS blocks by name (RISS9, RISS16, or either extended with
+    GNSS states). Returns (corrected RissState, corrected RissSensorErrors):
+    - llh -= dx[pos]; vel_enu -= dx[vel]; azimuth = wrap(azimuth - dx[azimuth]); roll and pitch
+      -= dx when the layout has them (they are recomputed from the accelerometers at the next
+      step, so this correction only affects the current output).
+    - gyro / accelerometer biases: b -= dx (dx is estimated - true bias);
+    - odometer: dx[odo_accel] and dx[odo_speed] are errors of the corrected quantities, so the
+      subtracted biases grow by them. A layout without ``odo_speed`` (RISS9) attributes the
+      along-track part of dx[vel] to the odometer speed: the next step recomputes the velocity
+      from the odometer, so without this the velocity correction would not persist (the
+      cross-track part is the azimuth error, corrected through dx[azimuth]).
+    """
+    b = zero_sensor_errors() if sensor_errors is None else sensor_errors
+    dvel = dx[layout.sl("vel")]
+    azimuth = wrap_angle(state.azimuth - dx[layout.i("azimuth")])
+    roll = state.roll - dx[layout.i("roll")] if layout.has("roll") else state.roll
+    pitch = state.pitch - dx[layout.i("pitch")] if layout.has("pitch") else state.pitch
+    new_state = RissState(
+        llh=state.llh - dx[layout.sl("pos")],
+        vel_enu=state.vel_enu - dvel,
+        azimuth=azimuth,
+        pitch=pitch,
+        roll=roll,
+    )
+
+    gyro = b.gyro_bias_z_rad_s
+    if layout.has("gyro_bias_z"):
+        gyro = gyro - dx[layout.i("gyro_bias_z")]
+    accel = b.accel_bias_xy_m_s2
+    if layout.has("accel_bias_x"):
+        accel = accel - jnp.stack([dx[layout.i("accel_bias_x")], dx[layout.i("accel_bias_y")]])
+    odo_accel = b.odo_accel_bias_m_s2
+    if layout.has("odo_accel"):
+        odo_accel = odo_accel + dx[layout.i("odo_accel")]
+    if layout.has("odo_speed"):
+        d_speed = dx[layout.i("odo_speed")]
+    else:
+        forward = jnp.stack(
+            [jnp.sin(azimuth) * jnp.cos(pitch), jnp.cos(azimuth) * jnp.cos(pitch), jnp.sin(pitch)]
+        )
+        d_speed = forward @ dvel
+    new_errors = RissSensorErrors(gyro, accel, b.odo_speed_bias_m_s + d_speed, odo_accel)
+    return new_state, new_errors
+
+
+__all__ = [
+    "RISS9_NOISE",
+    "RISS16_NOISE",
+    "RissNoiseParams",
+    "riss9_dynamics",
+    "riss16_dynamics",
+    "riss_feedback",
+]
