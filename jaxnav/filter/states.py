@@ -4,6 +4,8 @@ Sign conventions (used by every model in jaxnav):
 - Error = estimated - true: dx = x_hat - x.
 - Position errors are geodetic (d_lat [rad], d_lon [rad], d_h [m]); velocity errors are ENU [m/s].
 - Attitude error eps (ENU, rad) is defined by C_hat_b_l = (I - [eps x]) C_b_l.
+- Sensor-error states are errors of the *compensated* sensor output the mechanization uses
+  (e.g. f_used - f = b_a + diag(f) S_a), so feedback folds them into the running estimates.
 - Measurement residuals are dz = h(x_hat) - z, so dz ~ H dx + noise with H = dh/dx.
 - Closed loop: after an update the estimate dx_hat is removed from the navigation state
   (x <- x_hat - dx_hat) and the error state is reset to zero.
