@@ -1,0 +1,359 @@
+"""RINEX 2/3 observation and navigation readers: slots, code selection, damaged files, real data."""
+
+from __future__ import annotations
+
+import datetime as dt
+import gzip
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jaxnav  # noqa: F401  (float64)
+from jaxnav.io import InputError, read_rinex_nav, read_rinex_obs
+from jaxnav.io.errors import datetime64_to_gps_seconds
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "esbc_static"
+OBS = DATA / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"
+NAV = DATA / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"
+
+C_LIGHT = 299792458.0
+LAMBDA_L1 = C_LIGHT / 1575.42e6
+
+# Synthetic file content: the value of code c for satellite sv at epoch k is a closed form, so
+# every slot can be checked exactly.
+TYPES3 = {"G": ["C1C", "C1W", "C2L", "C2W", "L1C", "L2W", "D1C", "S1C"], "E": ["C1C", "C5Q"]}
+SATS = {"G": [5, 7, 32], "E": [11]}
+_CODE_OFFSET = {"C1C": 0.0, "C1W": 0.25, "C2L": 0.5, "C2W": 0.75, "C5Q": 0.125}
+
+
+def value(code: str, sv: str, k: int) -> float:
+    prn = int(sv[1:])
+    base = 2.0e7 + 1.0e5 * prn + 30.0 * k + (1e6 if sv[0] == "E" else 0.0)
+    if code[0] == "C":
+        return base + _CODE_OFFSET[code]
+    if code[0] == "L":
+        return base / LAMBDA_L1 + (7.0 if code == "L2W" else 0.0)
+    if code[0] == "D":
+        return -100.0 * prn - k
+    return 40.0 + prn / 10.0  # S
+
+
+def missing(code: str, sv: str, k: int) -> bool:
+    return (sv == "G07" and code == "C2W") or (sv == "G32" and k == 2 and code[0] == "L")
+
+
+def _fmt(v, lli=" ", ssi="7"):
+    return " " * 16 if v is None else f"{v:14.3f}{lli}{ssi}"
+
+
+def _hline(content: str, label: str) -> str:
+    return f"{content:<60s}{label}"
+
+
+def rinex3_text(n_epochs=4, interval=30.0, lli_at=None):
+    hdr = [
+        _hline("     3.04           OBSERVATION DATA    M", "RINEX VERSION / TYPE"),
+        _hline(
+            "jaxnav test         jaxnav              20200625 000000 UTC", "PGM / RUN BY / DATE"
+        ),
+        _hline("SYNT", "MARKER NAME"),
+        _hline("  3582105.2910   532589.7313  5232754.8054", "APPROX POSITION XYZ"),
+        _hline("        0.0000        0.0000        0.0000", "ANTENNA: DELTA H/E/N"),
+    ]
+    for sys, codes in TYPES3.items():
+        hdr.append(_hline(f"{sys}  {len(codes):3d} " + " ".join(codes), "SYS / # / OBS TYPES"))
+    hdr += [
+        _hline(f"{interval:10.3f}", "INTERVAL"),
+        _hline("  2020     6    25     0     0    0.0000000     GPS", "TIME OF FIRST OBS"),
+        _hline("", "END OF HEADER"),
+    ]
+    out = list(hdr)
+    for k in range(n_epochs):
+        t = k * interval
+        mm, ss = divmod(t, 60.0)
+        svs = [f"{s}{p:02d}" for s in TYPES3 for p in SATS[s]]
+        out.append(f"> 2020 06 25 00 {int(mm):02d}{ss:11.7f}  0{len(svs):3d}")
+        for sv in svs:
+            fields = []
+            for code in TYPES3[sv[0]]:
+                v = None if missing(code, sv, k) else value(code, sv, k)
+                lli = "1" if (lli_at == (sv, k) and code == "L1C") else " "
+                fields.append(_fmt(v, lli))
+            out.append((sv + "".join(fields)).rstrip())
+    return out
+
+
+def rinex2_text(n_epochs=3):
+    types = ["C1", "P1", "L1", "P2", "L2", "C2"]
+    hdr = [
+        _hline("     2.11           OBSERVATION DATA    M (MIXED)", "RINEX VERSION / TYPE"),
+        _hline(
+            "jaxnav test         jaxnav              20200625 000000 UTC", "PGM / RUN BY / DATE"
+        ),
+        _hline("SYNT", "MARKER NAME"),
+        _hline("  3582105.2910   532589.7313  5232754.8054", "APPROX POSITION XYZ"),
+        _hline("        0.0000        0.0000        0.0000", "ANTENNA: DELTA H/E/N"),
+        _hline("     1     1", "WAVELENGTH FACT L1/2"),
+        _hline(f"{len(types):6d}" + "".join(f"{t:>6s}" for t in types), "# / TYPES OF OBSERV"),
+        _hline("    30.000", "INTERVAL"),
+        _hline("  2020     6    25     0     0    0.0000000     GPS", "TIME OF FIRST OBS"),
+        _hline("", "END OF HEADER"),
+    ]
+    out = list(hdr)
+    v3 = {"C1": "C1C", "P1": "C1W", "L1": "L1C", "P2": "C2W", "L2": "L2W", "C2": "C2L"}
+    for k in range(n_epochs):
+        svs = ["G05", "G07", "E11"]
+        mm, ss = divmod(k * 30.0, 60.0)
+        out.append(f" 20  6 25  0 {int(mm):2d}{ss:11.7f}  0{len(svs):3d}" + "".join(svs))
+        for sv in svs:
+            vals = []
+            for t in types:
+                code = v3[t]
+                ok = sv[0] == "G" or t in ("C1", "L1")
+                vals.append(value(code, sv, k) if ok and not missing(code, sv, k) else None)
+            line1 = "".join(_fmt(v) for v in vals[:5]).rstrip()
+            line2 = "".join(_fmt(v) for v in vals[5:]).rstrip()
+            out += [line1, line2]
+    return out
+
+
+def write(tmp_path: Path, lines, name="syn.rnx") -> Path:
+    p = tmp_path / name
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def t_gps(k, interval=30.0):
+    return datetime64_to_gps_seconds(np.datetime64("2020-06-25T00:00:00")) + k * interval
+
+
+# ------------------------------------------------------------------------------------------
+
+
+def test_rinex3_slots_values_and_priority(tmp_path):
+    p = write(tmp_path, rinex3_text())
+    obs = read_rinex_obs(
+        p, {"G": ["C1", "C2", "L1", "L2", "C1W", "D1", "S1"], "E": ["C1", "C5"]}, indicators=True
+    )
+    np.testing.assert_array_equal(obs.time_gps_s, t_gps(np.arange(4)))
+    assert obs.interval_s == 30.0 and obs.epoch_present.all()
+    np.testing.assert_allclose(obs.approx_pos_ecef, [3582105.291, 532589.7313, 5232754.8054])
+    g = obs.systems["G"]
+    # default priority: band 1 civil C/A first, band 2 P(Y) (W) before L2C (L)
+    assert g.codes == {
+        "C1": "C1C", "C2": "C2W", "L1": "L1C", "L2": "L2W", "C1W": "C1W", "D1": "D1C",
+        "S1": "S1C",
+    }  # fmt: skip
+    assert g.sv.shape == (32,) and g.sv[4] == "G05" and g.sv[31] == "G32"
+    for req, code in g.codes.items():
+        arr, m = g.obs[req], g.mask[req]
+        assert arr.shape == (4, 32)
+        for prn in range(1, 33):
+            sv = f"G{prn:02d}"
+            for k in range(4):
+                present = prn in SATS["G"] and not missing(code, sv, k)
+                assert m[k, prn - 1] == present
+                if present:
+                    assert arr[k, prn - 1] == pytest.approx(value(code, sv, k), abs=1e-3)
+                else:
+                    assert np.isnan(arr[k, prn - 1])
+    e = obs.systems["E"]
+    assert e.codes == {"C1": "C1C", "C5": "C5Q"} and e.sv.shape == (36,)
+    assert e.obs["C5"][1, 10] == pytest.approx(value("C5Q", "E11", 1), abs=1e-3)
+    assert set(g.lli) == {"L1", "L2"} and not g.lli["L1"].any()
+
+
+def test_priority_override_and_lli(tmp_path):
+    p = write(tmp_path, rinex3_text(lli_at=("G05", 2)))
+    obs = read_rinex_obs(
+        p, {"G": ["C2", "L1"]}, priority={"G": {"2": "LW", "1": "C"}}, indicators=True
+    )
+    assert obs.systems["G"].codes == {"C2": "C2L", "L1": "L1C"}
+    lli = obs.systems["G"].lli["L1"]
+    assert lli[2, 4] == 1 and lli.sum() == 1
+
+
+def test_code_requests_rejected_or_missing(tmp_path):
+    p = write(tmp_path, rinex3_text())
+    with pytest.raises(InputError, match="unknown observation code 'C1Z' for constellation G"):
+        read_rinex_obs(p, {"G": ["C1Z"]})
+    with pytest.raises(InputError, match="unknown observation request 'X1'"):
+        read_rinex_obs(p, {"G": ["X1"]})
+    with pytest.raises(InputError, match=r"no observation code for G 'C5'.*expected one of"):
+        read_rinex_obs(p, {"G": ["C5"]})
+    with pytest.warns(UserWarning, match="all-missing"):
+        obs = read_rinex_obs(p, {"G": ["C1", "C5Q"]}, on_missing="nan")
+    assert not obs.systems["G"].mask["C5Q"].any() and obs.systems["G"].codes["C5Q"] is None
+    with pytest.raises(InputError, match="G32 outside the 8 slots"):
+        read_rinex_obs(p, {"G": ["C1"]}, slots={"G": (1, 8)})
+
+
+def test_rinex2_types_map_to_rinex3(tmp_path):
+    p = write(tmp_path, rinex2_text(), "syn.20o")
+    obs = read_rinex_obs(p, {"G": ["C1", "C1W", "C2", "L1", "L2"], "E": ["C1", "L1"]})
+    g = obs.systems["G"]
+    # RINEX 2 P2 -> C2W and L2 -> L2W (P(Y) tracking), P1 -> C1W
+    assert g.codes == {"C1": "C1C", "C1W": "C1W", "C2": "C2W", "L1": "L1C", "L2": "L2W"}
+    assert obs.systems["E"].codes == {"C1": "C1X", "L1": "L1X"}
+    for k in range(3):
+        assert g.obs["C2"][k, 4] == pytest.approx(value("C2W", "G05", k), abs=1e-3)
+        assert g.obs["L1"][k, 6] == pytest.approx(value("L1C", "G07", k), abs=1e-3)
+        assert np.isnan(g.obs["C2"][k, 6])  # G07 C2W missing
+    assert obs.systems["E"].obs["C1"][2, 10] == pytest.approx(value("C1C", "E11", 2), abs=1e-3)
+    np.testing.assert_array_equal(obs.time_gps_s, t_gps(np.arange(3)))
+
+
+def test_gzip_input(tmp_path):
+    lines = rinex3_text()
+    p = tmp_path / "syn.rnx.gz"
+    p.write_bytes(gzip.compress(("\n".join(lines) + "\n").encode()))
+    a = read_rinex_obs(p, {"G": ["C1"]})
+    b = read_rinex_obs(write(tmp_path, lines), {"G": ["C1"]})
+    np.testing.assert_array_equal(a.systems["G"].obs["C1"], b.systems["G"].obs["C1"])
+
+
+def test_hatanaka_compressed_input(tmp_path):
+    hatanaka = pytest.importorskip("hatanaka")
+    lines = rinex3_text()
+    text = "\n".join(lines) + "\n"
+    p = tmp_path / "syn.crx.gz"
+    p.write_bytes(hatanaka.compress(text.encode()))  # CRX, then gzip (the package default)
+    assert p.read_bytes()[:2] == b"\x1f\x8b"
+    a = read_rinex_obs(p, {"G": ["C1", "L2"]})
+    b = read_rinex_obs(write(tmp_path, lines), {"G": ["C1", "L2"]})
+    for req in ("C1", "L2"):
+        np.testing.assert_array_equal(a.systems["G"].obs[req], b.systems["G"].obs[req])
+    bad = tmp_path / "bad.rnx.gz"
+    bad.write_bytes(gzip.compress(text.encode())[:100])
+    with pytest.raises(InputError, match="cannot decompress"):
+        read_rinex_obs(bad, {"G": ["C1"]})
+
+
+def test_damaged_rinex2(tmp_path):
+    lines = rinex2_text(n_epochs=3)
+    n_hdr = lines.index(next(x for x in lines if "END OF HEADER" in x)) + 1
+    # epoch 2 loses one observation line: the scan meets an observation where an epoch is due
+    cut = lines[: n_hdr + 7 + 3] + lines[n_hdr + 7 + 4 :]
+    with pytest.raises(InputError, match="unparsable epoch record"):
+        read_rinex_obs(write(tmp_path, cut, "c.20o"), {"G": ["C1"]})
+    with pytest.raises(InputError, match="file ends.*truncated record"):
+        read_rinex_obs(write(tmp_path, lines[:-2], "t.20o"), {"G": ["C1"]})
+    bad = list(lines)
+    bad[n_hdr + 1] = bad[n_hdr + 1][:16] + "  1100000x0.000" + bad[n_hdr + 1][31:]
+    with pytest.raises(InputError, match=rf"line {n_hdr + 2}, epoch .*unparsable observation"):
+        read_rinex_obs(write(tmp_path, bad, "b.20o"), {"G": ["C1W"]})
+    # georinex parses every RINEX 2 field of the used systems: unrequested ones are checked too
+    with pytest.raises(InputError, match=rf"line {n_hdr + 2}, epoch .*unparsable observation"):
+        read_rinex_obs(write(tmp_path, bad, "b.20o"), {"G": ["C2"]})
+    assert read_rinex_obs(write(tmp_path, bad, "b.20o"), {"E": ["C1"]}).time_gps_s.size == 3
+
+
+def _blocks(lines):
+    i0 = lines.index(next(x for x in lines if x.startswith(">")))
+    idx = [i for i, x in enumerate(lines) if x.startswith(">")] + [len(lines)]
+    return lines[:i0], [lines[a:b] for a, b in zip(idx[:-1], idx[1:], strict=True)]
+
+
+def test_damaged_rinex3(tmp_path):
+    hdr, blocks = _blocks(rinex3_text(n_epochs=5))
+    n_hdr = len(hdr)
+
+    def f(bl):
+        return write(tmp_path, hdr + sum(bl, []), "bad.rnx")
+
+    swapped = [blocks[0], blocks[2], blocks[1], blocks[3]]
+    line_of_3rd = n_hdr + 2 * len(blocks[0]) + 1
+    with pytest.raises(InputError, match=rf"line {line_of_3rd}, epoch .*out of order"):
+        read_rinex_obs(f(swapped), {"G": ["C1"]})
+    short = [blocks[0], blocks[1][:-1], blocks[2]]  # one satellite record missing
+    with pytest.raises(InputError, match="expected satellite record 4 of 4"):
+        read_rinex_obs(f(short), {"G": ["C1"]})
+    with pytest.raises(InputError, match="file ends.*truncated record"):
+        read_rinex_obs(f([blocks[0], blocks[1][:-2]]), {"G": ["C1"]})
+    garbage = [list(b) for b in blocks[:3]]
+    garbage[1][2] = garbage[1][2][:5] + "xx.yyy" + garbage[1][2][11:]
+    bad_line = n_hdr + len(blocks[0]) + 3
+    with pytest.raises(InputError, match=rf"line {bad_line}, epoch .*unparsable observation"):
+        read_rinex_obs(f(garbage), {"G": ["C1"]})
+    with pytest.warns(UserWarning, match="dropping 1 exactly repeated epoch"):
+        obs = read_rinex_obs(f([blocks[0], blocks[1], blocks[1], blocks[2]]), {"G": ["C1"]})
+    np.testing.assert_array_equal(obs.time_gps_s, t_gps(np.arange(3)))
+    changed = [list(b) for b in blocks[1:2]][0]
+    changed[1] = changed[1][:3] + f"{1.5e7:14.3f}" + changed[1][17:]
+    with pytest.raises(InputError, match="repeated epoch with different observations"):
+        read_rinex_obs(f([blocks[0], blocks[1], changed, blocks[2]]), {"G": ["C1"]})
+    with pytest.warns(UserWarning, match="2 missing epoch"):
+        obs = read_rinex_obs(f([blocks[0], blocks[3], blocks[4]]), {"G": ["C1"]})
+    np.testing.assert_array_equal(obs.epoch_present, [True, False, False, True, True])
+    assert not obs.systems["G"].mask["C1"][1:3].any()
+    assert obs.systems["G"].obs["C1"][3, 4] == pytest.approx(value("C1C", "G05", 3), abs=1e-3)
+    off = list(blocks[2])
+    off[0] = off[0].replace("00 01  0.0", "00 01 10.0")  # 70 s on a 30 s grid
+    with pytest.raises(InputError, match="off the 30 s grid"):
+        read_rinex_obs(f([blocks[0], blocks[1], off, blocks[3], blocks[4]]), {"G": ["C1"]})
+    no_types = [x for x in hdr if "OBS TYPES" not in x]
+    with pytest.raises(InputError, match="missing SYS / # / OBS TYPES"):
+        read_rinex_obs(write(tmp_path, no_types + sum(blocks, []), "bad.rnx"), {"G": ["C1"]})
+
+
+# ------------------------------------------------------------------------------------------
+# Real data (ESBC, 2020-06-25)
+
+
+def _need(p: Path):
+    if not p.exists():
+        pytest.skip(f"shared real data not present: {p} (only in the project workspace)")
+
+
+@pytest.fixture(scope="module")
+def esbc_hour():
+    _need(OBS)
+    tlim = (dt.datetime(2020, 6, 25, 0, 0), dt.datetime(2020, 6, 25, 0, 59, 59))
+    return read_rinex_obs(OBS, tlim=tlim)  # default: GPS + Galileo, Hatanaka + gzip
+
+
+def test_esbc_hour_code_ranges(esbc_hour):
+    obs = esbc_hour
+    assert obs.time_gps_s.size == 120 and obs.interval_s == 30.0
+    assert obs.time_gps_s[0] == t_gps(0)
+    g = obs.systems["G"]
+    assert g.codes["C1"] == "C1C" and g.codes["C2"] == "C2W"
+    c1 = g.obs["C1"][g.mask["C1"]]
+    print(f"GPS C1C: {c1.min():.4e} .. {c1.max():.4e} m, {g.mask['C1'].any(0).sum()} satellites")
+    # geometric ranges are 2.0e7-2.58e7 m; the receiver clock (+0.48 ms = +144 km here) and
+    # satellite clocks (up to +-0.7 ms) push the measured maximum to 2.63e7 m (G21 at 1.6 deg)
+    assert 2.0e7 < c1.min() and c1.max() < 2.7e7
+    assert 8 <= g.mask["C1"].any(axis=0).sum() <= 16
+    e = obs.systems["E"]
+    c1e = e.obs["C1"][e.mask["C1"]]
+    assert 2.2e7 < c1e.min() and c1e.max() < 3.0e7  # Galileo orbit radius 29600 km
+    np.testing.assert_allclose(obs.approx_pos_ecef, [3582105.291, 532589.7313, 5232754.8054])
+
+
+def test_esbc_doppler_matches_code_rate(esbc_hour):
+    """-lambda_1 D1C [m/s] = d(C1C)/dt: both see the same range rate and receiver clock drift."""
+    g = esbc_hour.systems["G"]
+    c1, d1 = g.obs["C1"], g.obs["D1"]
+    code_rate = np.diff(c1, axis=0) / 30.0
+    dop = -LAMBDA_L1 * 0.5 * (d1[1:] + d1[:-1])
+    diff = (code_rate - dop)[np.isfinite(code_rate - dop)]
+    p95 = np.percentile(np.abs(diff), 95)
+    print(f"code rate - Doppler: median {np.median(diff):.3f} m/s, p95 {p95:.3f} m/s")
+    assert diff.size > 500
+    assert np.percentile(np.abs(diff), 95) < 0.5
+    assert np.nanmax(np.abs(dop)) < 1000.0  # GPS range rates are below ~900 m/s
+
+
+def test_esbc_navigation_file():
+    _need(NAV)
+    nav = read_rinex_nav(NAV, use={"G"})
+    sqrt_a = nav["sqrtA"].values
+    sqrt_a = sqrt_a[np.isfinite(sqrt_a)]
+    assert sqrt_a.size > 100
+    np.testing.assert_allclose(sqrt_a, np.sqrt(26_559_700.0), rtol=2e-3)  # GPS a = 26560 km
+    with pytest.raises(InputError, match="not navigation data"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            read_rinex_nav(OBS)
