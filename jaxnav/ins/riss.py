@@ -60,13 +60,15 @@ class RissSensorErrors(NamedTuple):
     """Current estimates of the sensor errors removed from the raw inputs (closed loop).
 
     Each is subtracted from the raw measurement: w_z - gyro_bias_z_rad_s,
-    (f_x, f_y) - accel_bias_xy_m_s2, v_od - odo_speed_bias_m_s, a_od - odo_accel_bias_m_s2.
+    (f_x, f_y) - accel_bias_xy_m_s2, a_od (1 - odo_scale) - odo_accel_bias_m_s2; the odometer
+    speed is scaled, v_od (1 - odo_scale): a wheel odometer's error is a scale factor (tyre
+    radius), so a standing vehicle (v_od = 0) stays at rest whatever the estimate.
     They are held constant between filter updates (``riss_errors.riss_feedback`` updates them).
     """
 
     gyro_bias_z_rad_s: jax.Array
     accel_bias_xy_m_s2: jax.Array  # shape (2,)
-    odo_speed_bias_m_s: jax.Array
+    odo_scale: jax.Array  # relative error of the raw odometer speed (unitless)
     odo_accel_bias_m_s2: jax.Array
 
 
@@ -85,8 +87,8 @@ def correct_input(inp: RissInput, sensor_errors: RissSensorErrors | None = None)
         f_x=inp.f_x - b.accel_bias_xy_m_s2[..., 0],
         f_y=inp.f_y - b.accel_bias_xy_m_s2[..., 1],
         w_z=inp.w_z - b.gyro_bias_z_rad_s,
-        v_od=inp.v_od - b.odo_speed_bias_m_s,
-        a_od=inp.a_od - b.odo_accel_bias_m_s2,
+        v_od=inp.v_od * (1.0 - b.odo_scale),
+        a_od=inp.a_od * (1.0 - b.odo_scale) - b.odo_accel_bias_m_s2,
     )
 
 

@@ -33,6 +33,7 @@ from jaxnav.ins.riss import (
 
 _DEG = jnp.pi / 180.0
 _MG = 9.80665e-3  # 1 milli-g [m/s^2]
+_MIN_SCALE_SPEED_M_S = 1.0  # below this speed the odometer scale factor is not updated
 
 # Receiver-clock Allan coefficients of S001 eq 16 (after Brown & Hwang) and its inflation K.
 _CLOCK_H0 = 2.0e-19
@@ -268,8 +269,9 @@ def riss_feedback(
       -= dx when the layout has them (they are recomputed from the accelerometers at the next
       step, so this correction only affects the current output).
     - gyro / accelerometer biases: b -= dx (dx is estimated - true bias);
-    - odometer: dx[odo_accel] and dx[odo_speed] are errors of the corrected quantities, so the
-      subtracted biases grow by them. A layout without ``odo_speed`` (RISS9) attributes the
+    - odometer: dx[odo_accel] is an error of the corrected acceleration, so the subtracted bias
+      grows by it; dx[odo_speed] is turned into a scale-factor correction at the current speed
+      (held below 1 m/s). A layout without ``odo_speed`` (RISS9) attributes the
       along-track part of dx[vel] to the odometer speed: the next step recomputes the velocity
       from the odometer, so without this the velocity correction would not persist (the
       cross-track part is the azimuth error, corrected through dx[azimuth]).
@@ -303,7 +305,12 @@ def riss_feedback(
             [jnp.sin(azimuth) * jnp.cos(pitch), jnp.cos(azimuth) * jnp.cos(pitch), jnp.sin(pitch)]
         )
         d_speed = forward @ dvel
-    new_errors = RissSensorErrors(gyro, accel, b.odo_speed_bias_m_s + d_speed, odo_accel)
+    # The speed error becomes a scale-factor correction: v_od (1 - k') = v_od (1 - k) - d_speed.
+    # Below 1 m/s the ratio is ill-conditioned (and at rest the odometer is exact), so k holds.
+    speed = jnp.linalg.norm(state.vel_enu)
+    moving = speed > _MIN_SCALE_SPEED_M_S
+    d_scale = jnp.where(moving, d_speed * (1.0 - b.odo_scale) / jnp.where(moving, speed, 1.0), 0.0)
+    new_errors = RissSensorErrors(gyro, accel, b.odo_scale + d_scale, odo_accel)
     return new_state, new_errors
 
 

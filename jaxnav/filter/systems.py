@@ -1,0 +1,227 @@
+"""Navigation systems the integration filters drive: the full-IMU INS and the RISS.
+
+A system knows its mechanization, its error model, where its GNSS antenna is, and how to feed
+estimated errors back. The filters (tight.py, loose.py) only talk to this interface:
+
+- ``layout``: the navigation + sensor error-state layout (a prefix of the filter's layout);
+- ``propagate(nav, sensors, samples, dt)`` -> (nav, mean corrected inputs over the epoch);
+- ``dynamics(nav, mean_inputs, sensors)`` -> continuous (F, G, Qc) of ``layout``;
+- ``antenna(nav, mean_inputs, sensors, layout_full)`` -> ppp.Receiver with Jacobians;
+- ``feedback(nav, sensors, dx, layout_full)`` -> corrected (nav, sensors);
+- ``initial_std(...)``, ``llh(nav)``, ``vel_enu(nav)``, ``euler(nav)`` for outputs.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from jaxnav import attitude, geodesy
+from jaxnav.filter.states import INS15, RISS16, StateLayout
+from jaxnav.gnss.ppp import Receiver
+from jaxnav.ins import errors as ins_errors
+from jaxnav.ins import riss, riss_errors, strapdown
+
+
+class NavSigmas(eqx.Module):
+    """Initial 1-sigma of the navigation states (chosen: what a GNSS initialisation gives)."""
+
+    pos_m: float = 3.0
+    vel_m_s: float = 0.3
+    roll_pitch_rad: float = 0.01  # ~0.6 deg from levelling
+    azimuth_rad: float = 0.05  # ~3 deg from GNSS course over ground
+
+
+def _pos_std_llh(llh, sigma_m):
+    """Geodetic 1-sigma (rad, rad, m) of an isotropic sigma_m [m] at ``llh``."""
+    return sigma_m / geodesy.metres_per_radian(llh)
+
+
+def _place(std, layout: StateLayout, name, value):
+    return std.at[layout.sl(name)].set(value) if layout.has(name) else std
+
+
+class RissSystem(eqx.Module):
+    """3D RISS (seeds 000/002) with its 16-state (S000) or 9-state (S002) error model."""
+
+    layout: StateLayout = eqx.field(static=True, default=RISS16)
+    params: riss_errors.RissNoiseParams = eqx.field(default_factory=riss_errors.RissNoiseParams)
+    lever_b: jax.Array = eqx.field(default_factory=lambda: jnp.zeros(3))
+
+    def propagate(self, nav: riss.RissState, sensors: riss.RissSensorErrors, samples, dt):
+        """Mechanize the epoch's raw ``RissInput`` samples [K] with the current sensor estimates."""
+        nav, _ = riss.riss_run(nav, samples, dt, sensors)
+        mean = riss.RissInput(
+            samples.f_x.mean(),
+            samples.f_y.mean(),
+            samples.w_z.mean(),
+            samples.v_od[-1],
+            samples.a_od.mean(),
+        )
+        return nav, mean
+
+    def dynamics(self, nav, mean_inputs, sensors):
+        fn = riss_errors.riss16_dynamics if self.layout == RISS16 else riss_errors.riss9_dynamics
+        return fn(nav, mean_inputs, self.params, sensors)
+
+    def C_b_l(self, nav: riss.RissState):
+        return attitude.dcm_from_euler(jnp.stack([nav.roll, nav.pitch, nav.azimuth]))
+
+    def antenna(self, nav: riss.RissState, mean_inputs, sensors, layout_full: StateLayout):
+        """Antenna at llh + D^-1 C l. The azimuth column is d(C l)/dA = [u_N, -u_E, 0] (ENU).
+
+        The RISS velocity is the odometer's; the lever-arm rotation term w x l (< 1 cm/s for a
+        roof antenna in a 0.1 rad/s turn) is neglected.
+        """
+        lever_l = self.C_b_l(nav) @ self.lever_b
+        llh_ant = nav.llh + geodesy.llh_rate_matrix(nav.llh) @ lever_l
+        C_l_e = geodesy.C_l_e(llh_ant[0], llh_ant[1])
+        n = layout_full.size
+        J_pos = (
+            jnp.zeros((3, n))
+            .at[:, layout_full.sl("pos")]
+            .set(geodesy.llh_to_ecef_jacobian(llh_ant))
+        )
+        dlever_daz = jnp.stack([lever_l[1], -lever_l[0], 0.0])
+        J_pos = J_pos.at[:, layout_full.i("azimuth")].set(C_l_e @ dlever_daz)
+        J_vel = jnp.zeros((3, n)).at[:, layout_full.sl("vel")].set(C_l_e)
+        return Receiver(geodesy.llh_to_ecef(llh_ant), C_l_e @ nav.vel_enu, llh_ant, J_pos, J_vel)
+
+    def feedback(self, nav, sensors, dx, layout_full: StateLayout):
+        return riss_errors.riss_feedback(nav, dx, layout_full, sensors)
+
+    def initial_std(self, nav: riss.RissState, sig: NavSigmas):
+        p = self.params
+        std = jnp.zeros(self.layout.size)
+        std = std.at[self.layout.sl("pos")].set(_pos_std_llh(nav.llh, sig.pos_m))
+        std = std.at[self.layout.sl("vel")].set(sig.vel_m_s)
+        std = std.at[self.layout.i("azimuth")].set(sig.azimuth_rad)
+        std = _place(std, self.layout, "odo_accel", p.odo_accel_sigma_m_s2)
+        std = _place(std, self.layout, "gyro_bias_z", p.gyro_bias_sigma_rad_s)
+        std = _place(std, self.layout, "roll", p.roll_sigma_rad)
+        std = _place(std, self.layout, "pitch", p.pitch_sigma_rad)
+        std = _place(std, self.layout, "accel_bias_x", p.accel_bias_sigma_m_s2)
+        std = _place(std, self.layout, "accel_bias_y", p.accel_bias_sigma_m_s2)
+        std = _place(std, self.layout, "odo_speed", 0.1)
+        return std
+
+    def zero_sensors(self):
+        return riss.zero_sensor_errors()
+
+    def calibrate_static(self, nav: riss.RissState, samples: riss.RissInput, dt):
+        """Sensor estimates from a standstill: b_z = mean(w_z) - w_e sin(lat) (vertical gyro),
+        b_xy = mean(f_xy) - gravity projection of the start attitude.
+
+        The turn-on bias of a MEMS gyro (2 deg/s for the IMU300CC) dwarfs the in-run model, so
+        the filter starts from this standstill estimate, as S000 does before driving off.
+        """
+        bias = samples.w_z.mean() - geodesy.OMEGA_E * jnp.sin(nav.llh[0])
+        # Horizontal accelerometers: static specific force minus the gravity projection of the
+        # start attitude (riss_pitch_roll at rest: f_y = g sin p, f_x = -g cos p sin r). This
+        # assumes the start attitude is known (a levelled / surveyed parking spot): at rest a
+        # bias cannot otherwise be told from a tilt, and S000's F leaves both unobservable.
+        g = geodesy.normal_gravity(nav.llh[0], nav.llh[2])
+        f_expected = jnp.stack(
+            [-g * jnp.cos(nav.pitch) * jnp.sin(nav.roll), g * jnp.sin(nav.pitch)]
+        )
+        accel = jnp.stack([samples.f_x.mean(), samples.f_y.mean()]) - f_expected
+        return self.zero_sensors()._replace(gyro_bias_z_rad_s=bias, accel_bias_xy_m_s2=accel)
+
+    def idle_inputs(self, nav):
+        """Mean inputs before any propagation: level, unaccelerated, at the state's speed."""
+        z = jnp.zeros(())
+        return riss.RissInput(z, z, z, jnp.linalg.norm(nav.vel_enu), z)
+
+    def llh(self, nav):
+        return nav.llh
+
+    def vel_enu(self, nav):
+        return nav.vel_enu
+
+    def euler(self, nav):
+        return jnp.stack([nav.roll, nav.pitch, nav.azimuth])
+
+
+class InsSystem(eqx.Module):
+    """Full strapdown INS (ENU, quaternion) with the 15/21/27-state error model."""
+
+    layout: StateLayout = eqx.field(static=True, default=INS15)
+    model: ins_errors.ImuErrorModel = None  # type: ignore[assignment]
+    lever_b: jax.Array = eqx.field(default_factory=lambda: jnp.zeros(3))
+
+    def propagate(self, nav, sensors: ins_errors.SensorErrors, samples, dt):
+        """``nav`` is (NavState, previous corrected sample); ``samples`` raw ImuIncrements [K]."""
+        state, prev = nav
+        corrected = ins_errors.correct_imu(samples, sensors, dt)
+        state, _ = strapdown.mechanize(state, corrected, dt, prev)
+        last = strapdown.ImuIncrements(corrected.dtheta_b[-1], corrected.dv_b[-1])
+        span = dt * samples.dv_b.shape[0]
+        mean = (corrected.dv_b.sum(0) / span, corrected.dtheta_b.sum(0) / span)
+        return (state, last), mean
+
+    def dynamics(self, nav, mean_inputs, sensors):
+        state, _ = nav
+        f_b, w_ib_b = mean_inputs
+        return ins_errors.error_dynamics(
+            self.layout, state.llh, state.vel_enu, state.C_b_l, f_b, w_ib_b, self.model
+        )
+
+    def antenna(self, nav, mean_inputs, sensors, layout_full: StateLayout):
+        state, _ = nav
+        _, w_ib_b = mean_inputs
+        C = state.C_b_l
+        llh_ant = strapdown.antenna_llh(state.llh, C, self.lever_b)
+        vel_ant = strapdown.antenna_vel_enu(state.llh, state.vel_enu, C, w_ib_b, self.lever_b)
+        C_l_e = geodesy.C_l_e(llh_ant[0], llh_ant[1])
+        J_llh = ins_errors.antenna_llh_jacobian(layout_full, state.llh, C, self.lever_b)
+        J_vel = ins_errors.antenna_vel_jacobian(
+            layout_full, state.llh, state.vel_enu, C, w_ib_b, self.lever_b
+        )
+        return Receiver(
+            geodesy.llh_to_ecef(llh_ant),
+            C_l_e @ vel_ant,
+            llh_ant,
+            geodesy.llh_to_ecef_jacobian(llh_ant) @ J_llh,
+            C_l_e @ J_vel,
+        )
+
+    def feedback(self, nav, sensors, dx, layout_full: StateLayout):
+        state, prev = nav
+        state = ins_errors.feedback(state, dx, layout_full)
+        sensors = ins_errors.feedback_sensors(sensors, dx, layout_full)
+        return (state, prev), sensors
+
+    def initial_std(self, nav, sig: NavSigmas):
+        state, _ = nav
+        std = ins_errors.sensor_initial_std(self.layout, self.model)
+        std = std.at[self.layout.sl("pos")].set(_pos_std_llh(state.llh, sig.pos_m))
+        std = std.at[self.layout.sl("vel")].set(sig.vel_m_s)
+        att = jnp.stack([sig.roll_pitch_rad, sig.roll_pitch_rad, sig.azimuth_rad])
+        return std.at[self.layout.sl("att")].set(att)
+
+    def zero_sensors(self):
+        return ins_errors.SensorErrors.zeros()
+
+    def calibrate_static(self, nav, samples: strapdown.ImuIncrements, dt):
+        """Gyro biases from a standstill with known attitude: b_g = mean(w_b) - C_l^b w_ie^l.
+
+        Accelerometer biases stay zero: at rest they cannot be told from a tilt.
+        """
+        state, _ = nav
+        w_mean = samples.dtheta_b.mean(0) / dt
+        w_ie_b = state.C_b_l.T @ geodesy.earth_rate_enu(state.llh[0])
+        return self.zero_sensors()._replace(gyro_bias_rad_s=w_mean - w_ie_b)
+
+    def idle_inputs(self, nav):
+        """Mean (f_b, w_ib_b) before any propagation (only the lever-arm terms read them)."""
+        return (jnp.zeros(3), jnp.zeros(3))
+
+    def llh(self, nav):
+        return nav[0].llh
+
+    def vel_enu(self, nav):
+        return nav[0].vel_enu
+
+    def euler(self, nav):
+        return attitude.euler_from_quat(nav[0].q_b_l)

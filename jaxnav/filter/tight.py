@@ -1,0 +1,264 @@
+"""Tightly coupled PPP/INS and PPP/RISS: one GNSS epoch = mechanize, propagate, update, feed back.
+
+Two rates, nested scans (DESIGN invariant 4): ``epoch_step`` runs the IMU-rate mechanization over
+the epoch's samples (inner ``lax.scan`` in the system), then covariance propagation, the masked
+update with every row of the configured PPP mode, and closed-loop feedback. ``run`` scans it over
+the epochs. Everything is a pure function of (carry, inputs), so a batch of scenarios is a
+``jax.vmap`` of ``run`` and an outage is only a mask (``EpochInput.keep``).
+
+Outlier control (S002 §5.3): a coarse pre-fit test on code residuals (after removing their
+common median, so a clock jump or a drift after an outage is not mistaken for an outlier), a
+chi-square gate on each innovation, and a normalised post-fit residual test: when the worst
+used row exceeds ``postfit_sigma``, that satellite (all its rows if it was a code row, as S002
+rejects the same satellite's phase and Doppler with its code) is removed and the update redone.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from jaxnav import geodesy
+from jaxnav.filter import ekf
+from jaxnav.filter.states import StateLayout
+from jaxnav.filter.systems import NavSigmas
+from jaxnav.gnss import corrections, models, ppp
+
+
+class TightFilter(eqx.Module):
+    """A navigation system coupled with a PPP configuration (both static in shape)."""
+
+    system: Any
+    cfg: ppp.PppConfig
+    slots: ppp.SlotInfo
+    imu_dt_s: float
+    epoch_dt_s: float
+
+    @property
+    def layout(self) -> StateLayout:
+        have_clock = self.system.layout.has("clock_bias")
+        return self.system.layout.extend(*ppp.gnss_blocks(self.cfg, have_clock))
+
+
+class Carry(NamedTuple):
+    """Filter memory between epochs."""
+
+    nav: Any  # system navigation state
+    sensors: Any  # system sensor-error estimates
+    gnss_est: jnp.ndarray  # [n] totals of the GNSS states (other entries unused)
+    P: jnp.ndarray  # [n, n] error covariance
+    hatch: ppp.HatchState
+    tracked: jnp.ndarray  # [S] bool: slot used (phase continuous) at the previous epoch
+    elevation: jnp.ndarray  # [S] previous elevations (for the ionosphere random walk)
+
+
+class EpochInput(NamedTuple):
+    """Everything one GNSS epoch consumes."""
+
+    samples: Any  # system IMU/RISS samples over (t_{k-1}, t_k] ([K, ...])
+    obs: ppp.GnssObs
+    keep: jnp.ndarray  # [S] bool: False withholds the slot (outage / availability policy)
+    day_of_year: jnp.ndarray  # scalar, for the mapping function
+
+
+class EpochOutput(NamedTuple):
+    """Per-epoch solution and diagnostics."""
+
+    llh: jnp.ndarray  # [3] navigation (IMU) position
+    vel_enu: jnp.ndarray  # [3]
+    euler: jnp.ndarray  # [3] roll, pitch, azimuth
+    P_nav: jnp.ndarray  # [k, k] covariance of the navigation block (pos, vel, attitude)
+    nis: jnp.ndarray  # normalised innovation squared of the used rows
+    dof: jnp.ndarray  # number of used rows
+    n_sat: jnp.ndarray  # slots with at least one used row
+    used_by_kind: jnp.ndarray  # [4] used rows per kind (code, phase, Doppler, ionosphere)
+    gated_by_kind: jnp.ndarray  # [4] offered rows rejected by the gates / outlier tests
+    clock_bias_m: jnp.ndarray
+
+
+def nav_block_size(layout: StateLayout) -> int:
+    """Size of the leading navigation block (pos, vel and attitude / azimuth) for outputs."""
+    names = [n for n in ("pos", "vel", "att", "azimuth") if layout.has(n)]
+    return max(layout.sl(n).stop for n in names)
+
+
+def initial_carry(
+    tf: TightFilter, nav0, obs0: ppp.GnssObs, sigmas: NavSigmas | None = None, sensors0=None
+):
+    """Start from a navigation state (e.g. GNSS-initialised) and the first epoch's code.
+
+    The receiver clock starts at the median code residual; per-slot states start on the slots'
+    first use (``tracked`` all false). ``sensors0``: initial sensor-error estimates (e.g. from
+    ``system.calibrate_static``); zero by default.
+    """
+    sigmas = NavSigmas() if sigmas is None else sigmas
+    layout = tf.layout
+    sensors = tf.system.zero_sensors() if sensors0 is None else sensors0
+    std = jnp.zeros(layout.size)
+    std = std.at[: tf.system.layout.size].set(tf.system.initial_std(nav0, sigmas))
+    gstd = ppp.gnss_initial_std(tf.cfg, layout)
+    std = jnp.where(jnp.arange(layout.size) >= tf.system.layout.size, gstd, std)
+    if tf.system.layout.has("clock_bias"):
+        std = std.at[layout.i("clock_bias")].set(tf.cfg.clock_init_sigma_m)
+        std = std.at[layout.i("clock_drift")].set(tf.cfg.clock_drift_init_sigma_m_s)
+    gnss_est = jnp.zeros(layout.size)
+    if layout.has("zwd"):
+        llh = tf.system.llh(nav0)
+        gnss_est = gnss_est.at[layout.i("zwd")].set(corrections.saastamoinen_zwd_m(llh[2]))
+    if layout.has("clock_bias"):
+        rx = tf.system.antenna(nav0, tf.system.idle_inputs(nav0), sensors, layout)
+        geo = models.geometry(rx.pos_ecef, rx.vel_ecef, obs0.sat)
+        cmb = ppp.combos(tf.slots, obs0)
+        code = cmb.code_corr_m[:, 0] if tf.cfg.mode == "sf_code" else cmb.code_if_m
+        resid = jnp.where(obs0.available, code - geo.range_m + obs0.sat.clock_m, jnp.nan)
+        gnss_est = gnss_est.at[layout.i("clock_bias")].set(jnp.nan_to_num(jnp.nanmedian(resid)))
+    S = tf.cfg.n_slots
+    return Carry(
+        nav=nav0,
+        sensors=sensors,
+        gnss_est=gnss_est,
+        P=jnp.diag(std**2),
+        hatch=ppp.HatchState.empty(S),
+        tracked=jnp.zeros(S, bool),
+        elevation=jnp.full(S, jnp.pi / 2),
+    )
+
+
+def _propagate_covariance(tf: TightFilter, layout, carry: Carry, nav, mean_inputs):
+    """P <- Phi P Phi^T + Qd for the joint navigation + GNSS error model over one epoch."""
+    n_sys = tf.system.layout.size
+    n = layout.size
+    F_sys, G_sys, Qc_sys = tf.system.dynamics(nav, mean_inputs, carry.sensors)
+    F_g, q_g = ppp.gnss_dynamics(tf.cfg, layout, carry.elevation, skip=tf.system.layout.names)
+    F = F_g.at[:n_sys, :n_sys].set(F_sys)
+    m_sys = G_sys.shape[1]
+    G = jnp.zeros((n, m_sys + n)).at[:n_sys, :m_sys].set(G_sys)
+    G = G.at[:, m_sys:].set(jnp.eye(n))
+    Qc = jnp.zeros((m_sys + n, m_sys + n)).at[:m_sys, :m_sys].set(Qc_sys)
+    Qc = Qc.at[m_sys:, m_sys:].set(jnp.diag(q_g))
+    Phi, Qd = ekf.discretize_taylor(F, G, Qc, tf.epoch_dt_s)
+    _, P = ekf.predict(jnp.zeros(n), carry.P, Phi, Qd)
+    return P
+
+
+def _slot_usable(tf: TightFilter, rx: ppp.Receiver, obs: ppp.GnssObs, keep):
+    geo = models.geometry(rx.pos_ecef, rx.vel_ecef, obs.sat)
+    C_e_l = geodesy.C_l_e(rx.llh[0], rx.llh[1]).T
+    el, _ = models.elevation_azimuth(geo.los_ecef, C_e_l)
+    return obs.available & keep & (el >= tf.cfg.elevation_mask_rad), el
+
+
+def _reset_slots(tf: TightFilter, layout, gnss_est, P, obs: ppp.GnssObs, restart):
+    """Re-initialise per-slot ambiguity / ionosphere states of restarted slots from the code."""
+    cfg = tf.cfg
+    flags, var = ppp.slot_state_resets(cfg, layout, restart)
+    _, P = ekf.reset_states(jnp.zeros(layout.size), P, flags, var)
+    cmb = ppp.combos(tf.slots, obs)
+    if layout.has("amb"):
+        amb = jnp.where(restart, cmb.phase_if_m - cmb.code_if_m, gnss_est[layout.sl("amb")])
+        gnss_est = gnss_est.at[layout.sl("amb")].set(amb)
+    if layout.has("iono"):
+        iono0 = obs.iono_model_l1_m
+        new = {
+            "iono": iono0,
+            "amb1": obs.phase_m[:, 0] - cmb.code_corr_m[:, 0] + 2.0 * iono0,
+            "amb2": obs.phase_m[:, 1] - cmb.code_corr_m[:, 1] + 2.0 * cmb.gamma * iono0,
+        }
+        for name, value in new.items():
+            cur = gnss_est[layout.sl(name)]
+            gnss_est = gnss_est.at[layout.sl(name)].set(jnp.where(restart, value, cur))
+    return gnss_est, P
+
+
+def _prefit_mask(cfg: ppp.PppConfig, rows: ppp.Rows):
+    """Coarse pre-fit test on code rows: |dz - median(dz_code)| <= prefit_code_m (S002: 20 m)."""
+    is_code = (rows.kind == ppp.KIND_CODE) & rows.mask
+    med = jnp.nanmedian(jnp.where(is_code, rows.dz, jnp.nan))
+    bad = is_code & (jnp.abs(rows.dz - jnp.nan_to_num(med)) > cfg.prefit_code_m)
+    bad_slot = jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(bad)
+    return rows.mask & ~bad_slot[rows.slot]
+
+
+def _update_with_postfit(cfg: ppp.PppConfig, P, rows: ppp.Rows, mask):
+    """Masked update; if the worst normalised post-fit residual exceeds the threshold, drop it
+    (its whole satellite for a code row) and update again from the same prior."""
+    n = P.shape[0]
+    x0 = jnp.zeros(n)
+    first = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, mask, cfg.gate_chi2)
+    resid = ekf.normalized_residuals(first.x, first.P, rows.dz, rows.H, rows.R)
+    score = jnp.where(first.used, jnp.abs(resid), 0.0)
+    worst = jnp.argmax(score)
+    reject = score[worst] > cfg.postfit_sigma
+    whole_sat = rows.kind[worst] == ppp.KIND_CODE
+    drop = jnp.where(
+        whole_sat, rows.slot == rows.slot[worst], jnp.arange(rows.dz.shape[0]) == worst
+    )
+    second = ekf.masked_update(
+        x0, P, rows.dz, rows.H, rows.R, first.used & ~(drop & reject), cfg.gate_chi2
+    )
+    return jax.tree.map(lambda a, b: jnp.where(reject, b, a), first, second)
+
+
+def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput):
+    """One GNSS epoch: mechanize, propagate P, reset per-slot states, update, feed back."""
+    layout = tf.layout
+    cfg = tf.cfg
+    nav, mean_inputs = tf.system.propagate(carry.nav, carry.sensors, inp.samples, tf.imu_dt_s)
+    P = _propagate_covariance(tf, layout, carry, nav, mean_inputs)
+    gnss_est = carry.gnss_est
+    if layout.has("clock_bias"):  # nominal clock dynamics: bias' = drift (the only non-RW state)
+        drift = gnss_est[layout.i("clock_drift")]
+        gnss_est = gnss_est.at[layout.i("clock_bias")].add(drift * tf.epoch_dt_s)
+
+    rx = tf.system.antenna(nav, mean_inputs, carry.sensors, layout)
+    usable, el = _slot_usable(tf, rx, inp.obs, inp.keep)
+    restart = usable & (~carry.tracked | inp.obs.slip)
+    gnss_est, P = _reset_slots(tf, layout, gnss_est, P, inp.obs, restart)
+    hatch = carry.hatch
+    if cfg.mode == "sdf_code":
+        hatch = ppp.hatch_update(cfg, hatch, ppp.combos(tf.slots, inp.obs), usable, restart)
+
+    rows, _ = ppp.measurement_rows(
+        cfg, layout, tf.slots, inp.obs, rx, gnss_est, inp.keep, hatch, inp.day_of_year
+    )
+    mask = _prefit_mask(cfg, rows)
+    res = _update_with_postfit(cfg, P, rows, mask)
+
+    nav, sensors = tf.system.feedback(nav, carry.sensors, res.x, layout)
+    gnss_est = gnss_est - jnp.where(jnp.arange(layout.size) >= tf.system.layout.size, res.x, 0.0)
+    if tf.system.layout.has("clock_bias"):  # the system owns the clock: fold it in here too
+        for name in ("clock_bias", "clock_drift"):
+            gnss_est = gnss_est.at[layout.i(name)].add(-res.x[layout.i(name)])
+
+    used_slot = jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(res.used)
+    if cfg.uses_phase:
+        phase_used = (
+            jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(res.used & (rows.kind == ppp.KIND_PHASE))
+        )
+        tracked = phase_used
+    else:
+        tracked = usable
+    k = nav_block_size(layout)
+    out = EpochOutput(
+        llh=tf.system.llh(nav),
+        vel_enu=tf.system.vel_enu(nav),
+        euler=tf.system.euler(nav),
+        P_nav=res.P[:k, :k],
+        nis=res.nis,
+        dof=res.dof,
+        n_sat=jnp.sum(used_slot),
+        used_by_kind=jnp.zeros(4, int).at[rows.kind].add(res.used.astype(int)),
+        gated_by_kind=jnp.zeros(4, int).at[rows.kind].add((rows.mask & ~res.used).astype(int)),
+        clock_bias_m=gnss_est[layout.i("clock_bias")] if layout.has("clock_bias") else 0.0,
+    )
+    el_mem = jnp.where(usable, el, carry.elevation)
+    new = Carry(nav, sensors, gnss_est, res.P, hatch, tracked, el_mem)
+    return new, out
+
+
+def run(tf: TightFilter, carry: Carry, inputs: EpochInput):
+    """Scan ``epoch_step`` over stacked epochs; returns (final carry, stacked EpochOutput)."""
+    return jax.lax.scan(lambda c, i: epoch_step(tf, c, i), carry, inputs)
