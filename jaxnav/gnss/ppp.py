@@ -71,8 +71,14 @@ class PppConfig(eqx.Module):
     doppler_sigma_m_s: float = 0.1  # S001 eq 11
     glonass_code_factor: float = 3.0  # S002
     glonass_phase_factor: float = 1.5  # S002
-    sf_iono_residual_fraction: float = 0.25  # chosen: model residual 1-sigma = 25 % of the model
-    sf_iono_residual_floor_m: float = 0.3  # chosen: ~2 TECU at L1 (US-TEC 1-3 TECU, S000)
+    # Ionosphere model residual (SF rows and IC-PPP pseudo-observations): 1-sigma =
+    # sqrt((fraction * model)^2 + floor^2). Chosen: a broadcast (Klobuchar) model leaves 30-50 %
+    # (the simulator leaves 30 %); a GIM ~ 2 TECU (0.3 m at L1, S001 eq 7 sigma_ion,0).
+    iono_model_residual_fraction: float = 0.3
+    iono_model_residual_floor_m: float = 0.3
+    # Orbit + clock residual of the products, common to code and phase of a satellite (chosen:
+    # IGS-final level, 2.5 cm orbit + 2 cm clock; the filter has no state for it).
+    product_sigma_m: float = 0.03
     sdf_sigma_floor_fraction: float = 0.35  # chosen: smoothed code keeps >= 35 % of its noise
     hatch_window: int = eqx.field(static=True, default=100)  # chosen: 100 epochs (S000: silent)
     elevation_mask_rad: float = 0.17453292519943295  # 10 deg (S000 QC mask; S002 used 7 deg)
@@ -86,7 +92,6 @@ class PppConfig(eqx.Module):
     zwd_psd_m2_s: float = (0.01 / _SQRT_H) ** 2  # chosen: 1 cm/sqrt(h) (common PPP setting)
     iono_sigma_m_sqrt_h: float = 0.03  # S001 eqs 4-5
     dcb_sigma_m_sqrt_h: float = 0.03  # S001 eqs 8-9
-    gim_sigma0_m: float = 0.3  # S001 eq 7 (sigma_ion,0 = sigma_ion,1)
     # Initial / reset variances.
     clock_init_sigma_m: float = 1e3
     clock_drift_init_sigma_m_s: float = 10.0
@@ -366,24 +371,25 @@ def measurement_rows(
     geo_pred = geo.range_m + rx_clock + trop
 
     blocks = []  # (dz, H, var, mask, kind)
+    iono_var = (cfg.iono_model_residual_fraction * obs.iono_model_l1_m) ** 2 + (
+        models.elevation_sigma(cfg.iono_model_residual_floor_m, el)
+    ) ** 2
+    prod = cfg.product_sigma_m**2  # not amplified by the IF combination: added after it
     if cfg.mode == "sf_code":
         z = cmb.code_corr_m[:, 0] - obs.iono_model_l1_m
-        iono_var = (
-            cfg.sf_iono_residual_fraction * obs.iono_model_l1_m
-        ) ** 2 + cfg.sf_iono_residual_floor_m**2
-        blocks.append((geo_pred - z, H_common, code_sigma**2 + iono_var, usable, KIND_CODE))
+        blocks.append((geo_pred - z, H_common, code_sigma**2 + iono_var + prod, usable, KIND_CODE))
     elif cfg.mode in ("df_code", "float_ppp"):
-        var = (code_sigma * if_noise) ** 2
+        var = (code_sigma * if_noise) ** 2 + prod
         blocks.append((geo_pred - cmb.code_if_m, H_common, var, usable, KIND_CODE))
     elif cfg.mode == "sdf_code":
         n = jnp.maximum(hatch.count, 1.0)
         frac = jnp.maximum(1.0 / jnp.sqrt(n), cfg.sdf_sigma_floor_fraction)
-        var = (code_sigma * if_noise * frac) ** 2
+        var = (code_sigma * if_noise * frac) ** 2 + prod
         blocks.append((geo_pred - hatch.smoothed_m, H_common, var, usable, KIND_CODE))
     if cfg.mode == "float_ppp":
         amb = gnss_est[layout.sl("amb")]
         H_phase = H_common + _per_slot(layout, "amb", jnp.ones(S))
-        var = (phase_sigma * if_noise) ** 2
+        var = (phase_sigma * if_noise) ** 2 + prod
         blocks.append((geo_pred + amb - cmb.phase_if_m, H_phase, var, usable, KIND_PHASE))
     if cfg.mode == "ic_ppp":
         iono = gnss_est[layout.sl("iono")]
@@ -395,12 +401,14 @@ def measurement_rows(
         for band, coef, dcb_coef in ((0, ones, cmb.beta), (1, cmb.gamma, -cmb.alpha)):
             pred = geo_pred + coef * iono + dcb_coef * dcb
             H = H_common + H_iono * coef[:, None] + _column(layout, "dcb", S, dcb_coef)
-            blocks.append((pred - cmb.code_corr_m[:, band], H, code_sigma**2, usable, KIND_CODE))
+            var = code_sigma**2 + prod
+            blocks.append((pred - cmb.code_corr_m[:, band], H, var, usable, KIND_CODE))
         for band, coef, amb_name in ((0, ones, "amb1"), (1, cmb.gamma, "amb2")):
             amb = gnss_est[layout.sl(amb_name)]
             pred = geo_pred - coef * iono + amb
             H = H_common - H_iono * coef[:, None] + _per_slot(layout, amb_name, ones)
-            blocks.append((pred - obs.phase_m[:, band], H, phase_sigma**2, usable, KIND_PHASE))
+            var = phase_sigma**2 + prod
+            blocks.append((pred - obs.phase_m[:, band], H, var, usable, KIND_PHASE))
     if cfg.doppler:
         drift = _block_value(layout, gnss_est, "clock_drift")
         pred = geo.range_rate_m_s + drift - obs.sat.clock_rate_m_s
@@ -418,15 +426,14 @@ def measurement_rows(
         diffed = [(dz, H, jnp.diag(var), mask, kind) for dz, H, var, mask, kind in blocks]
 
     if cfg.mode == "ic_ppp":
-        # GIM pseudo-observation of each slant ionosphere, S001 eqs 6-7 (the local-time/latitude
-        # term of eq 7 is folded into sigma0; SEED_SPEC 2.5).
+        # Model (GIM / broadcast) pseudo-observation of each slant ionosphere, S001 eqs 6-7 (its
+        # local-time/latitude term folded into the residual model above; SEED_SPEC 2.5).
         iono = gnss_est[layout.sl("iono")]
-        var = (models.elevation_sigma(cfg.gim_sigma0_m, el)) ** 2
         diffed.append(
             (
                 iono - obs.iono_model_l1_m,
                 _per_slot(layout, "iono", jnp.ones(S)),
-                jnp.diag(var),
+                jnp.diag(iono_var),
                 usable,
                 KIND_IONO,
             )

@@ -1,0 +1,584 @@
+"""Loosely coupled GNSS/INS: position and velocity fixes plus vehicle constraints, one EKF.
+
+One GNSS epoch (S002 sec. 4.2, eq 4.20-4.29) = mechanize the epoch's IMU samples (inner
+``lax.scan`` in ``InsSystem.propagate``), propagate the covariance, one masked update with every
+configured row, closed-loop feedback. ``run`` scans it over the epochs; a batch of scenarios is a
+``jax.vmap`` of ``run`` and an outage is only a mask (``GnssFix.pos_valid`` / ``vel_valid``).
+
+Rows (each family switched by a static ``LooseConfig`` flag, each row also masked per epoch):
+
+- GNSS position (S002 eq 4.23-4.24): the antenna position predicted through the lever arm
+  (``InsSystem.antenna``) minus the fix, in local ENU metres,
+  dz = [R_N+h) cos(lat) d_lon, (R_M+h) d_lat, d_h] of (llh_ant_hat - llh_fix), with H the exact
+  antenna Jacobian scaled to metres; R = the fix's ENU covariance times ``pos_cov_scale`` (S002
+  scales R with DOP and satellite count but gives no numbers: one factor here).
+- GNSS velocity: ENU antenna velocity (lever-arm rotation term included) minus the fix.
+- NHC, odometer speed (optional scale-factor state ``odo_scale``), ZUPT + ZARU on detected
+  standstill (``filter.constraints``). S002: ZUPT is not applied while a GNSS velocity is used
+  (``zupt_without_gnss_vel``).
+
+Timing. Every row refers to the end of the epoch t_k. The lever-arm terms need the body rate at
+t_k: the epoch-mean rate lags it by half an epoch, which in an urban turn entry (yaw acceleration
+~0.5 rad/s^2) is a 0.25 rad/s error, i.e. 0.4 m/s at a 1.5 m lever; so the last compensated IMU
+sample (rate at t_k - dt_imu / 2) is used instead. To run the constraints faster than the GNSS,
+make the epochs shorter and mark the in-between GNSS fixes invalid.
+
+Covariance propagation: F is evaluated ``cov_substeps`` times per epoch (on equal chunks of the
+samples, each with its own mechanized state and mean inputs) and discretised with
+``ekf.discretize_taylor``; more substeps follow the attitude through sharp turns.
+
+In-motion alignment (``align_from_gnss``): the heading is the course over ground of the GNSS
+velocity, atan2(v_E, v_N), which assumes no side slip and the IMU forward axis along the vehicle's
+(heading error ~ sigma_v / speed: 0.3 deg at 10 m/s with 0.05 m/s velocity noise); roll and pitch
+come from levelling the mean specific force (valid at rest or at constant velocity: an
+unmodelled acceleration a tilts them by ~a/g rad) or, without IMU data, roll = 0 and pitch =
+the velocity's flight-path angle atan2(v_U, v_H) (a land vehicle's pitch, no slip).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav import attitude, geodesy
+from jaxnav.filter import constraints as cons
+from jaxnav.filter import ekf
+from jaxnav.filter.states import StateLayout
+from jaxnav.filter.systems import InsSystem, NavSigmas
+from jaxnav.ins import errors as ins_errors
+from jaxnav.ins import strapdown
+
+#: Names of the row families, in the order of ``Applied``.
+ROW_FAMILIES = ("pos", "vel", "nhc", "odo", "zupt", "zaru")
+
+
+class LooseConfig(eqx.Module):
+    """What the loosely coupled filter uses. Flags are static (they set the shapes)."""
+
+    use_pos: bool = eqx.field(static=True, default=True)
+    use_vel: bool = eqx.field(static=True, default=True)
+    use_nhc: bool = eqx.field(static=True, default=False)
+    use_odometer: bool = eqx.field(static=True, default=False)
+    estimate_odo_scale: bool = eqx.field(static=True, default=False)
+    use_zupt: bool = eqx.field(static=True, default=False)
+    use_zaru: bool = eqx.field(static=True, default=False)  # applied with ZUPT on static epochs
+    zupt_without_gnss_vel: bool = eqx.field(static=True, default=True)  # S002 sec. 4.2
+    cov_substeps: int = eqx.field(static=True, default=1)  # F evaluations per epoch
+    # In-motion alignment inside the filter (module docstring); False: nav0 is already aligned.
+    align_in_motion: bool = eqx.field(static=True, default=False)
+    align_min_speed_m_s: float = 3.0  # chosen: course error sigma_v / v, 1 deg at 3 m/s
+    align_sigma_floor_rad: float = 0.02  # chosen: slip / IMU-vehicle yaw misalignment
+    align_prior_sigma_rad: float = float(np.pi / np.sqrt(3.0))  # unknown heading: uniform
+    pos_cov_scale: float = 1.0  # R = scale * fix covariance (S002 4.24: DOP scaling, no numbers)
+    vel_cov_scale: float = 1.0
+    nhc_sigma_m_s: float = 1.0  # S003: 1 m/s (a 2-3 deg misalignment at 18-20 m/s)
+    odo_sigma_m_s: float = 0.1  # chosen: OBD-II 1 km/h quantum (0.08 m/s rms) + noise
+    odo_scale_sigma: float = 0.01  # chosen: 1 % initial scale-factor uncertainty (tyres)
+    odo_scale_rw: float = 0.0  # random-walk PSD sqrt [1/sqrt(s)] of the scale (0 = constant)
+    zupt_sigma_m_s: float = 0.02  # chosen: residual vibration of a stopped car
+    zaru_sigma_rad_s: float | None = None  # None: gyro ARW / sqrt(epoch length)
+    zupt_ref_var: float | None = None  # detector's initial reference: None = VRW^2 / dt_imu
+    detector: cons.ZuptDetector = eqx.field(default_factory=cons.ZuptDetector)
+    vehicle_lever_b: jax.Array = eqx.field(default_factory=lambda: jnp.zeros(3))  # IMU -> axle
+    gate_chi2: float = float(np.inf)  # per-row innovation gate (ekf.masked_update)
+
+
+class LooseFilter(eqx.Module):
+    """A full-IMU ``InsSystem`` with a loose-coupling configuration."""
+
+    system: InsSystem
+    cfg: LooseConfig
+    imu_dt_s: float
+    epoch_dt_s: float
+
+    @property
+    def layout(self) -> StateLayout:
+        if self.cfg.use_odometer and self.cfg.estimate_odo_scale:
+            return self.system.layout.extend(("odo_scale", 1))
+        return self.system.layout
+
+
+class GnssFix(NamedTuple):
+    """One GNSS solution epoch (PPP or RTK) at the antenna."""
+
+    llh: jnp.ndarray  # [3] lat, lon [rad], h [m]
+    cov_pos_enu: jnp.ndarray  # [3, 3] [m^2]
+    vel_enu: jnp.ndarray  # [3] [m/s]
+    cov_vel_enu: jnp.ndarray  # [3, 3] [m^2/s^2]
+    pos_valid: jnp.ndarray  # bool: False withholds the position (outage)
+    vel_valid: jnp.ndarray  # bool
+
+
+class EpochInput(NamedTuple):
+    """Everything one epoch consumes (build with ``epoch_inputs``)."""
+
+    samples: strapdown.ImuIncrements  # raw IMU samples over (t_{k-1}, t_k], [K, 3] each
+    gnss: GnssFix
+    odo_speed_m_s: jnp.ndarray  # odometer reading at t_k
+    odo_valid: jnp.ndarray  # bool
+    nhc_valid: jnp.ndarray  # bool: False suspends the NHC (e.g. known slip)
+    zupt_allowed: jnp.ndarray  # bool: False suspends ZUPT/ZARU even if static is detected
+
+
+class Applied(NamedTuple):
+    """Which row families entered this epoch's update (any of their rows used)."""
+
+    pos: jnp.ndarray
+    vel: jnp.ndarray
+    nhc: jnp.ndarray
+    odo: jnp.ndarray
+    zupt: jnp.ndarray
+    zaru: jnp.ndarray
+
+
+class Carry(NamedTuple):
+    """Filter memory between epochs."""
+
+    nav: Any  # InsSystem navigation state (NavState, last compensated sample)
+    sensors: ins_errors.SensorErrors
+    P: jnp.ndarray  # [n, n]
+    odo_scale: jnp.ndarray  # running estimate of the odometer scale-factor error
+    zupt_ref_var: jnp.ndarray  # detector's adaptive reference variance [m^2/s^4]
+    aligned: jnp.ndarray  # bool: heading set (always True without in-motion alignment)
+
+
+class EpochOutput(NamedTuple):
+    """Per-epoch solution and diagnostics."""
+
+    llh: jnp.ndarray  # [3] IMU position
+    vel_enu: jnp.ndarray  # [3]
+    euler: jnp.ndarray  # [3] roll, pitch, azimuth
+    P_nav: jnp.ndarray  # [9, 9] covariance of pos (rad, rad, m), vel, att
+    nis: jnp.ndarray  # normalised innovation squared of the used rows
+    dof: jnp.ndarray  # number of used rows
+    applied: Applied
+    static: jnp.ndarray  # stationarity detector decision
+    zupt_stat: jnp.ndarray  # detector statistic T (variance ratio)
+    aligned: jnp.ndarray  # heading initialised (in-motion alignment done)
+    sensors: ins_errors.SensorErrors
+    odo_scale: jnp.ndarray
+
+
+# ---- inputs and initialisation ----------------------------------------------------------------
+def gnss_fix(llh, vel_enu, sigma_pos_m, sigma_vel_m_s, pos_valid=True, vel_valid=True) -> GnssFix:
+    """A fix with isotropic sigmas (broadcasts over leading epoch axes of ``llh``)."""
+    llh = jnp.asarray(llh, jnp.float64)
+    lead = llh.shape[:-1]
+    eye = jnp.eye(3)
+    return GnssFix(
+        llh,
+        jnp.broadcast_to(
+            jnp.asarray(sigma_pos_m, jnp.float64)[..., None, None] ** 2 * eye, lead + (3, 3)
+        ),
+        jnp.asarray(vel_enu, jnp.float64),
+        jnp.broadcast_to(
+            jnp.asarray(sigma_vel_m_s, jnp.float64)[..., None, None] ** 2 * eye, lead + (3, 3)
+        ),
+        jnp.broadcast_to(jnp.asarray(pos_valid, bool), lead),
+        jnp.broadcast_to(jnp.asarray(vel_valid, bool), lead),
+    )
+
+
+def gnss_fixes_from_pos(sol) -> GnssFix:
+    """``GnssFix`` epochs from an RTKLIB solution (``jaxnav.io.pos.PosSolution``).
+
+    Outage epochs (Q = 7) and missing values are marked invalid (their values replaced by finite
+    placeholders). Matching the solution epochs to the IMU epochs is the caller's job.
+    """
+    from jaxnav.io import pos as pos_io
+
+    llh = np.asarray(sol.llh, np.float64)
+    cov_p = pos_io.covariance_enu(sol.sd_neu_m, sol.sd_cross_m)
+    vel = np.asarray(sol.vel_enu, np.float64)
+    cov_v = pos_io.covariance_enu(sol.sd_vel_neu, sol.sd_vel_cross)
+    ok_p = ~np.asarray(sol.outage) & np.isfinite(llh).all(-1) & np.isfinite(cov_p).all((-1, -2))
+    ok_v = ~np.asarray(sol.outage) & np.isfinite(vel).all(-1) & np.isfinite(cov_v).all((-1, -2))
+    eye = np.broadcast_to(np.eye(3), cov_p.shape)
+    return GnssFix(
+        jnp.asarray(np.where(ok_p[:, None], llh, 0.0)),
+        jnp.asarray(np.where(ok_p[:, None, None], cov_p, eye)),
+        jnp.asarray(np.where(ok_v[:, None], vel, 0.0)),
+        jnp.asarray(np.where(ok_v[:, None, None], cov_v, eye)),
+        jnp.asarray(ok_p),
+        jnp.asarray(ok_v),
+    )
+
+
+def epoch_inputs(
+    samples: strapdown.ImuIncrements,
+    gnss: GnssFix,
+    odo_speed_m_s=None,
+    odo_valid=None,
+    nhc_valid=True,
+    zupt_allowed=True,
+) -> EpochInput:
+    """Stack per-epoch inputs; ``samples`` are [E, K, 3]. Missing odometer = invalid."""
+    n_ep = samples.dv_b.shape[0]
+    if odo_speed_m_s is None:
+        odo_speed_m_s = jnp.zeros(n_ep)
+        odo_valid = False if odo_valid is None else odo_valid
+    odo_valid = True if odo_valid is None else odo_valid
+    return EpochInput(
+        samples,
+        gnss,
+        jnp.broadcast_to(jnp.asarray(odo_speed_m_s, jnp.float64), (n_ep,)),
+        jnp.broadcast_to(jnp.asarray(odo_valid, bool), (n_ep,)),
+        jnp.broadcast_to(jnp.asarray(nhc_valid, bool), (n_ep,)),
+        jnp.broadcast_to(jnp.asarray(zupt_allowed, bool), (n_ep,)),
+    )
+
+
+def align_from_gnss(vel_enu, f_b_mean=None):
+    """In-motion alignment (module docstring): (roll, pitch, azimuth) from the GNSS velocity.
+
+    azimuth = atan2(v_E, v_N) (course over ground); with ``f_b_mean`` (mean specific force over
+    a quiet window) roll = atan2(-f_x, f_z), pitch = atan2(f_y, sqrt(f_x^2 + f_z^2)) (levelling:
+    at rest f^b = C_l^b [0, 0, g], i.e. g times the third row of C_b_l = (-cp sr, sp, cp cr));
+    otherwise roll = 0, pitch = atan2(v_U, |v_H|).
+    """
+    vel_enu = jnp.asarray(vel_enu, jnp.float64)
+    azimuth = jnp.arctan2(vel_enu[0], vel_enu[1])
+    if f_b_mean is None:
+        roll = jnp.zeros_like(azimuth)
+        pitch = jnp.arctan2(vel_enu[2], jnp.hypot(vel_enu[0], vel_enu[1]))
+    else:
+        f = jnp.asarray(f_b_mean, jnp.float64)
+        roll = jnp.arctan2(-f[0], f[2])
+        pitch = jnp.arctan2(f[1], jnp.hypot(f[0], f[2]))
+    return jnp.stack([roll, pitch, azimuth])
+
+
+def alignment_epoch(vel_enu, valid, min_speed_m_s=5.0):
+    """First epoch whose valid GNSS horizontal speed exceeds ``min_speed_m_s`` (-1 if none)."""
+    speed = jnp.hypot(vel_enu[..., 0], vel_enu[..., 1])
+    ok = jnp.asarray(valid, bool) & (speed > min_speed_m_s)
+    return jnp.where(jnp.any(ok), jnp.argmax(ok), -1)
+
+
+def initial_nav(llh, vel_enu, euler_rpa):
+    """InsSystem navigation state: (NavState, zero previous sample for coning/sculling)."""
+    z = jnp.zeros(3, jnp.float64)
+    return (strapdown.nav_state(llh, vel_enu, euler_rpa), strapdown.ImuIncrements(z, z))
+
+
+def initial_carry(lf: LooseFilter, nav0, sigmas: NavSigmas | None = None, P0=None) -> Carry:
+    """Carry at the start: zero sensor estimates, diagonal P from ``sigmas`` (or ``P0``)."""
+    sigmas = NavSigmas() if sigmas is None else sigmas
+    layout = lf.layout
+    if P0 is None:
+        std = jnp.zeros(layout.size)
+        std = std.at[: lf.system.layout.size].set(lf.system.initial_std(nav0, sigmas))
+        if layout.has("odo_scale"):
+            std = std.at[layout.i("odo_scale")].set(lf.cfg.odo_scale_sigma)
+        P0 = jnp.diag(std**2)
+    return Carry(
+        nav=nav0,
+        sensors=lf.system.zero_sensors(),
+        P=jnp.asarray(P0, jnp.float64),
+        odo_scale=jnp.zeros(()),
+        zupt_ref_var=jnp.asarray(_ref0_var(lf), jnp.float64),
+        aligned=jnp.asarray(not lf.cfg.align_in_motion),
+    )
+
+
+def _ref0_var(lf: LooseFilter):
+    if lf.cfg.zupt_ref_var is not None:
+        return lf.cfg.zupt_ref_var
+    vrw = jnp.max(jnp.broadcast_to(lf.system.model.accel_vrw_m_s_sqrt_s, (3,)))
+    return vrw**2 / lf.imu_dt_s
+
+
+def _zaru_sigma(lf: LooseFilter):
+    if lf.cfg.zaru_sigma_rad_s is not None:
+        return lf.cfg.zaru_sigma_rad_s
+    arw = jnp.broadcast_to(lf.system.model.gyro_arw_rad_sqrt_s, (3,))
+    return arw / jnp.sqrt(lf.epoch_dt_s)
+
+
+# ---- the epoch step ---------------------------------------------------------------------------
+def _propagate_covariance(lf: LooseFilter, layout, nav, mean_inputs, sensors, P, dt):
+    """P <- Phi P Phi^T + Qd with the system's F, G, Qc (+ the odometer scale state)."""
+    F_s, G_s, Qc_s = lf.system.dynamics(nav, mean_inputs, sensors)
+    n_s, n = lf.system.layout.size, layout.size
+    if n != n_s:  # the odometer scale: random walk (constant when odo_scale_rw = 0)
+        F = jnp.zeros((n, n)).at[:n_s, :n_s].set(F_s)
+        m = G_s.shape[1]
+        G = jnp.zeros((n, m + 1)).at[:n_s, :m].set(G_s)
+        G = G.at[layout.i("odo_scale"), m].set(1.0)
+        Qc = jnp.zeros((m + 1, m + 1)).at[:m, :m].set(Qc_s)
+        Qc = Qc.at[m, m].set(lf.cfg.odo_scale_rw**2)
+    else:
+        F, G, Qc = F_s, G_s, Qc_s
+    Phi, Qd = ekf.discretize_taylor(F, G, Qc, dt)
+    _, P = ekf.predict(jnp.zeros(n), P, Phi, Qd)
+    return P
+
+
+def _gnss_rows(lf: LooseFilter, layout, rx, fix: GnssFix):
+    """Position (ENU metres) and velocity (ENU) rows of the antenna against the fix."""
+    cfg = lf.cfg
+    llh_ant = rx.llh
+    # The antenna Jacobian w.r.t. dx in geodetic units: the system gives d(pos_ecef)/d(dx) =
+    # L J_llh with L = geodesy.llh_to_ecef_jacobian, so J_llh = L^-1 J_pos exactly.
+    L = geodesy.llh_to_ecef_jacobian(llh_ant)
+    J_llh = jnp.linalg.solve(L, rx.J_pos)
+    m_north, m_east, _ = geodesy.metres_per_radian(llh_ant)  # metres per rad of lat, lon
+    z = jnp.zeros_like(m_north)
+    to_enu = jnp.array([[z, m_east, z], [m_north, z, z], [z, z, z + 1.0]])
+    dllh = llh_ant - fix.llh
+    dllh = dllh.at[1].set(attitude.wrap_angle(dllh[1]))
+    pos = cons.Rows(
+        to_enu @ dllh,
+        to_enu @ J_llh,
+        cfg.pos_cov_scale * fix.cov_pos_enu,
+        jnp.full(3, fix.pos_valid, dtype=bool),
+    )
+    C_e_l = geodesy.C_l_e(llh_ant[0], llh_ant[1]).T
+    vel = cons.Rows(
+        C_e_l @ rx.vel_ecef - fix.vel_enu,
+        C_e_l @ rx.J_vel,
+        cfg.vel_cov_scale * fix.cov_vel_enu,
+        jnp.full(3, fix.vel_valid, dtype=bool),
+    )
+    return pos, vel
+
+
+def _align_in_motion(lf: LooseFilter, layout, nav, P, fix: GnssFix, aligned):
+    """In-motion alignment, once the GNSS horizontal speed exceeds ``align_min_speed_m_s``.
+
+    azimuth <- course over ground (roll and pitch kept); velocity <- the fix's; position <- the
+    fix moved from the antenna to the IMU with the new attitude. The position, velocity and
+    heading error states restart from the fix's variances and sigma_course^2 + floor^2 (course
+    variance = horizontal velocity variance / speed^2), their correlations cleared; that epoch's
+    fix is then not used again as a measurement. The tilt errors are carried over: the estimate
+    turns about the up axis by M = C_new C_old^T, so the ENU tilt-error components turn with it
+    (eps_new = M eps_old; the body-frame roll/pitch errors, and hence their correlation with the
+    accelerometer biases learnt while levelling, are unchanged). The antenna velocity is taken
+    for the IMU's (the lever-arm rotation term is neglected: the vehicle is starting off, not
+    turning hard). Returns (nav, P, aligned, aligned_now).
+    """
+    state, prev = nav
+    speed_h = jnp.hypot(fix.vel_enu[0], fix.vel_enu[1])
+    do = ~aligned & fix.vel_valid & fix.pos_valid & (speed_h > lf.cfg.align_min_speed_m_s)
+    euler = attitude.euler_from_quat(state.q_b_l)
+    course = jnp.arctan2(fix.vel_enu[0], fix.vel_enu[1])
+    q_new = attitude.quat_from_euler(euler.at[2].set(course))
+    lever_l = attitude.dcm_from_quat(q_new) @ lf.system.lever_b
+    llh_imu = fix.llh - geodesy.llh_rate_matrix(fix.llh) @ lever_l
+    new_state = strapdown.NavState(llh_imu, fix.vel_enu, q_new)
+    state = jax.tree.map(lambda a, b: jnp.where(do, b, a), state, new_state)
+
+    m_north, m_east, _ = geodesy.metres_per_radian(fix.llh)
+    var_pos = jnp.diag(fix.cov_pos_enu) / jnp.stack([m_east, m_north, 1.0]) ** 2  # E, N, U
+    var_course = jnp.trace(fix.cov_vel_enu[:2, :2]) / jnp.maximum(speed_h, 1e-3) ** 2
+    k = _heading_index(layout)
+    pos, vel = layout.sl("pos"), layout.sl("vel")
+    idx = jnp.arange(layout.size)
+    flags = (idx == k) | ((idx >= pos.start) & (idx < vel.stop))  # pos and vel are adjacent
+    var = jnp.zeros(layout.size).at[k].set(var_course + lf.cfg.align_sigma_floor_rad**2)
+    var = var.at[pos].set(var_pos[jnp.array([1, 0, 2])])  # (lat, lon, h) order
+    var = var.at[vel].set(jnp.diag(fix.cov_vel_enu))
+    att = layout.sl("att")
+    M = attitude.dcm_from_quat(q_new) @ attitude.dcm_from_quat(nav[0].q_b_l).T
+    T = jnp.eye(layout.size).at[att, att].set(M)
+    _, P_new = ekf.reset_states(jnp.zeros(layout.size), T @ P @ T.T, flags, var)
+    # With the heading unknown, a horizontal gyro bias and the horizontal Earth rate projected
+    # through the wrong heading were indistinguishable at standstill (ZARU, levelling): widen
+    # the body x, y gyro-bias variance by (w_ie cos(lat))^2 to cover what was absorbed.
+    name = "gyro_bias_ton" if layout.has("gyro_bias_ton") else "gyro_bias"
+    if layout.has(name):
+        w_h2 = (geodesy.OMEGA_E * jnp.cos(state.llh[0])) ** 2
+        xy = jnp.arange(layout.sl(name).start, layout.sl(name).start + 2)
+        P_new = P_new.at[xy, xy].add(w_h2)
+    return (state, prev), jnp.where(do, P_new, P), aligned | do, do
+
+
+def _heading_index(layout: StateLayout) -> int:
+    """Index of eps_up, the heading error for small tilt (third element of the att block)."""
+    return layout.sl("att").start + 2
+
+
+def _unknown_heading_rows(lf: LooseFilter, layout, rows: cons.Rows, C_b_l, aligned):
+    """Before the alignment no row may inform the (arbitrary) heading: its column is removed,
+    and the GNSS position rows absorb the unknown horizontal direction of the antenna lever
+    (variance |l_h|^2 added to the east and north rows, which come first)."""
+    k = _heading_index(layout)
+    H = rows.H.at[:, k].set(jnp.where(aligned, rows.H[:, k], 0.0))
+    lever_h2 = jnp.sum(lf.system.lever_b[:2] ** 2)  # horizontal part for a near-level body
+    extra = jnp.zeros(rows.size).at[:2].set(jnp.where(aligned | ~lf.cfg.use_pos, 0.0, lever_h2))
+    return rows._replace(H=H, R=rows.R + jnp.diag(jnp.where(rows.mask, extra, 0.0)))
+
+
+def _forget_heading(lf: LooseFilter, layout, res: ekf.UpdateResult, aligned):
+    """Before the alignment the heading estimate is not corrected and its error state keeps the
+    prior variance without correlations (what the filter could learn about it is nonlinear)."""
+    k = _heading_index(layout)
+    flags = jnp.arange(layout.size) == k
+    var = jnp.where(flags, lf.cfg.align_prior_sigma_rad**2, 0.0)
+    x_f, P_f = ekf.reset_states(res.x, res.P, flags, var)
+    return res._replace(x=jnp.where(aligned, res.x, x_f), P=jnp.where(aligned, res.P, P_f))
+
+
+def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
+    """One epoch: mechanize, propagate P, detect standstill, masked update, feed back."""
+    cfg, system, layout = lf.cfg, lf.system, lf.layout
+    n_sub = cfg.cov_substeps
+    k = inp.samples.dv_b.shape[0]
+    if k % n_sub:
+        raise ValueError(f"{k} IMU samples per epoch do not split into {n_sub} substeps")
+    chunks = jax.tree.map(lambda a: a.reshape(n_sub, k // n_sub, *a.shape[1:]), inp.samples)
+    dt_sub = lf.imu_dt_s * (k // n_sub)
+
+    def substep(c, chunk):
+        nav, P = c
+        nav, mean = system.propagate(nav, carry.sensors, chunk, lf.imu_dt_s)
+        P = _propagate_covariance(lf, layout, nav, mean, carry.sensors, P, dt_sub)
+        return (nav, P), mean
+
+    (nav, P), means = jax.lax.scan(substep, (carry.nav, carry.P), chunks)
+    f_mean_b, w_mean_b = jax.tree.map(lambda a: a.mean(0), means)  # epoch means (equal chunks)
+    state, last = nav
+    w_now_b = last.dtheta_b / lf.imu_dt_s  # rate at t_k - dt/2 for the lever-arm terms
+    C = state.C_b_l
+    lever = cfg.vehicle_lever_b
+
+    # Standstill detection on the raw samples (a bias does not change a variance).
+    stat = cons.stationarity_statistics(inp.samples.dv_b, lf.imu_dt_s)
+    gate = jnp.where(
+        inp.odo_valid & cfg.use_odometer,
+        inp.odo_speed_m_s <= cfg.detector.odo_zero_m_s,
+        jnp.linalg.norm(state.vel_enu) < cfg.detector.max_ins_speed_m_s,
+    )
+    static, ref_var, t_stat = cons.detect_stationary(
+        stat, carry.zupt_ref_var, _ref0_var(lf), gate, cfg.detector
+    )
+    zaru_on = static & inp.zupt_allowed  # the gyro information is independent of the GNSS
+    zupt_on = zaru_on
+    if cfg.zupt_without_gnss_vel and cfg.use_vel:
+        zupt_on = zupt_on & ~inp.gnss.vel_valid
+    aligned, gnss_ok = carry.aligned, jnp.ones(3, bool)
+    if cfg.align_in_motion:
+        nav, P, aligned, now = _align_in_motion(lf, layout, nav, P, inp.gnss, aligned)
+        state = nav[0]
+        C = state.C_b_l
+        # Before the alignment a moving INS runs in an arbitrary heading frame: horizontal GNSS
+        # rows would be explained by tilt and accelerometer biases, so only the vertical ones
+        # are used (and none at the alignment epoch, whose fix initialised the state).
+        gnss_ok = jnp.stack([aligned | static, aligned | static, jnp.asarray(True)]) & ~now
+
+    rx = system.antenna(nav, (f_mean_b, w_now_b), carry.sensors, layout)
+    pos_rows, vel_rows = _gnss_rows(lf, layout, rx, inp.gnss)
+    families = {
+        "pos": pos_rows._replace(mask=pos_rows.mask & gnss_ok & cfg.use_pos),
+        "vel": vel_rows._replace(mask=vel_rows.mask & gnss_ok & cfg.use_vel),
+    }
+    if cfg.use_nhc:
+        families["nhc"] = cons.nhc_rows(
+            layout,
+            state.llh,
+            state.vel_enu,
+            C,
+            w_now_b,
+            lever,
+            cfg.nhc_sigma_m_s,
+            inp.nhc_valid,
+        )
+    if cfg.use_odometer:
+        families["odo"] = cons.odometer_rows(
+            layout,
+            state.llh,
+            state.vel_enu,
+            C,
+            w_now_b,
+            lever,
+            inp.odo_speed_m_s,
+            cfg.odo_sigma_m_s,
+            inp.odo_valid,
+            carry.odo_scale,
+        )
+    if cfg.use_zupt:
+        families["zupt"] = cons.zupt_rows(layout, state.vel_enu, cfg.zupt_sigma_m_s, zupt_on)
+        if cfg.use_zaru:
+            families["zaru"] = cons.zaru_rows(
+                layout, state.llh, C, w_mean_b, _zaru_sigma(lf), zaru_on
+            )
+    names = list(families)
+    rows = cons.sanitize(cons.stack_rows(*families.values()))
+    if cfg.align_in_motion:
+        rows = _unknown_heading_rows(lf, layout, rows, C, aligned)
+    res = ekf.masked_update(
+        jnp.zeros(layout.size), P, rows.dz, rows.H, rows.R, rows.mask, cfg.gate_chi2
+    )
+    if cfg.align_in_motion:
+        res = _forget_heading(lf, layout, res, aligned)
+
+    nav, sensors = system.feedback(nav, carry.sensors, res.x, layout)
+    odo_scale = carry.odo_scale
+    if layout.has("odo_scale"):
+        odo_scale = odo_scale - res.x[layout.i("odo_scale")]
+
+    applied, start = {}, 0
+    for name in names:
+        size = families[name].size
+        applied[name] = jnp.any(res.used[start : start + size])
+        start += size
+    applied = Applied(*(applied.get(f, jnp.zeros((), bool)) for f in ROW_FAMILIES))
+    n_nav = layout.sl("att").stop
+    out = EpochOutput(
+        llh=system.llh(nav),
+        vel_enu=system.vel_enu(nav),
+        euler=system.euler(nav),
+        P_nav=res.P[:n_nav, :n_nav],
+        nis=res.nis,
+        dof=res.dof,
+        applied=applied,
+        static=static,
+        zupt_stat=t_stat,
+        aligned=aligned,
+        sensors=sensors,
+        odo_scale=odo_scale,
+    )
+    return Carry(nav, sensors, res.P, odo_scale, ref_var, aligned), out
+
+
+def run(lf: LooseFilter, carry: Carry, inputs: EpochInput):
+    """Scan ``epoch_step`` over stacked epochs; returns (final carry, stacked EpochOutput)."""
+    return jax.lax.scan(lambda c, i: epoch_step(lf, c, i), carry, inputs)
+
+
+# ---- helpers for simulation studies -----------------------------------------------------------
+def imu_error_model(grade) -> ins_errors.ImuErrorModel:
+    """The filter's ``ImuErrorModel`` matching a simulator ``ImuGrade`` (``jaxnav.sim.sensors``).
+
+    Bias drifts are the grade's GM parts, turn-on biases its random constants. The filter has one
+    scale-factor state per triad: its sigma is the root-sum-square of the grade's constant and
+    GM parts, with the GM correlation time when there is a GM part (else a random constant).
+    Used with INS27 the filter's model is the simulator's exactly (INS15/21 lump the turn-on
+    bias into the GM state, see ``ins.errors.sensor_initial_std``).
+    """
+
+    def scale(ton, gm, tau):
+        sigma = float(np.hypot(ton, gm))
+        return sigma, (float(tau) if gm > 0.0 else float(np.inf))
+
+    g = grade
+    sa, ta = scale(g.accel_scale_turn_on, g.accel_scale_gm_sigma, g.accel_scale_gm_tau_s)
+    sg, tg = scale(g.gyro_scale_turn_on, g.gyro_scale_gm_sigma, g.gyro_scale_gm_tau_s)
+    return ins_errors.ImuErrorModel(
+        accel_vrw_m_s_sqrt_s=grade.accel_vrw_m_s_sqrt_s,
+        gyro_arw_rad_sqrt_s=grade.gyro_arw_rad_sqrt_s,
+        accel_bias_sigma_m_s2=grade.accel_bias_gm_sigma_m_s2,
+        accel_bias_tau_s=grade.accel_bias_gm_tau_s,
+        gyro_bias_sigma_rad_s=grade.gyro_bias_gm_sigma_rad_s,
+        gyro_bias_tau_s=grade.gyro_bias_gm_tau_s,
+        accel_scale_sigma=sa,
+        accel_scale_tau_s=ta,
+        gyro_scale_sigma=sg,
+        gyro_scale_tau_s=tg,
+        accel_bias_ton_sigma_m_s2=grade.accel_bias_turn_on_m_s2,
+        gyro_bias_ton_sigma_rad_s=grade.gyro_bias_turn_on_rad_s,
+    )
