@@ -20,8 +20,11 @@ def test_euler_convention_physical_meaning():
     np.testing.assert_allclose(C @ jnp.array([1.0, 0.0, 0.0]), [0, -1, 0], atol=1e-15)
     # Pitch up 10 deg facing north: forward gains a positive up component.
     C = att.dcm_from_euler(jnp.array([0.0, np.radians(10), 0.0]))
-    np.testing.assert_allclose(C @ jnp.array([0.0, 1.0, 0.0]),
-                               [0, np.cos(np.radians(10)), np.sin(np.radians(10))], atol=1e-15)
+    np.testing.assert_allclose(
+        C @ jnp.array([0.0, 1.0, 0.0]),
+        [0, np.cos(np.radians(10)), np.sin(np.radians(10))],
+        atol=1e-15,
+    )
     # Positive roll (right wing down, RFU body) lowers the right axis.
     C = att.dcm_from_euler(jnp.array([np.radians(5), 0.0, 0.0]))
     assert float((C @ jnp.array([1.0, 0.0, 0.0]))[2]) < 0.0
@@ -46,8 +49,11 @@ def test_quaternion_product_composes_rotations():
     for _ in range(20):
         a, b = (jnp.array(rng.normal(size=3)) for _ in range(2))
         qa, qb = att.quat_from_rotvec(a), att.quat_from_rotvec(b)
-        np.testing.assert_allclose(att.dcm_from_quat(att.quat_multiply(qa, qb)),
-                                   att.dcm_from_quat(qa) @ att.dcm_from_quat(qb), atol=1e-14)
+        np.testing.assert_allclose(
+            att.dcm_from_quat(att.quat_multiply(qa, qb)),
+            att.dcm_from_quat(qa) @ att.dcm_from_quat(qb),
+            atol=1e-14,
+        )
         v = jnp.array(rng.normal(size=3))
         vq = jnp.concatenate([jnp.zeros(1), v])
         rotated = att.quat_multiply(att.quat_multiply(qa, vq), att.quat_conjugate(qa))[1:]
@@ -62,8 +68,9 @@ def test_rotvec_small_angle_is_smooth_and_exact():
     # Rodrigues check at a finite angle.
     phi = jnp.array([0.0, 0.0, 0.3])
     C = att.dcm_from_rotvec(phi)
-    np.testing.assert_allclose(C[:2, :2], [[np.cos(0.3), -np.sin(0.3)],
-                                           [np.sin(0.3), np.cos(0.3)]], atol=1e-15)
+    np.testing.assert_allclose(
+        C[:2, :2], [[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]], atol=1e-15
+    )
 
 
 def test_attitude_error_convention_and_correction():
@@ -81,5 +88,8 @@ def test_attitude_error_convention_and_correction():
 
 
 def test_wrap_angle():
-    np.testing.assert_allclose(att.wrap_angle(jnp.array([3 * np.pi / 2, -3 * np.pi / 2, 0.1])),
-                               [-np.pi / 2, np.pi / 2, 0.1], atol=1e-15)
+    np.testing.assert_allclose(
+        att.wrap_angle(jnp.array([3 * np.pi / 2, -3 * np.pi / 2, 0.1])),
+        [-np.pi / 2, np.pi / 2, 0.1],
+        atol=1e-15,
+    )

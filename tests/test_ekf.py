@@ -43,12 +43,14 @@ def test_van_loan_matches_closed_forms():
     q, dt = 0.3, 2.0
     Phi, Qd = ekf.discretize_van_loan(F, G, jnp.array([[q]]), dt)
     np.testing.assert_allclose(Phi, [[1.0, dt], [0.0, 1.0]], atol=1e-14)
-    np.testing.assert_allclose(Qd, q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]),
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        Qd, q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]), rtol=1e-12
+    )
     # First-order Gauss-Markov: Phi = e^{-dt/tau}, Qd = sigma^2 (1 - e^{-2 dt/tau}).
     tau, sigma = 30.0, 0.7
-    Phi, Qd = ekf.discretize_van_loan(jnp.array([[-1 / tau]]), jnp.eye(1),
-                                      jnp.array([[2 * sigma**2 / tau]]), dt)
+    Phi, Qd = ekf.discretize_van_loan(
+        jnp.array([[-1 / tau]]), jnp.eye(1), jnp.array([[2 * sigma**2 / tau]]), dt
+    )
     np.testing.assert_allclose(Phi[0, 0], np.exp(-dt / tau), rtol=1e-13)
     np.testing.assert_allclose(Qd[0, 0], sigma**2 * (1 - np.exp(-2 * dt / tau)), rtol=1e-12)
 
@@ -120,8 +122,7 @@ def test_gate_rejects_outlier_row_and_reports_it():
     H = jnp.eye(2)
     R = jnp.eye(2) * 0.01
     y = jnp.array([0.5, 50.0])  # second row is 50 sigma off
-    res = ekf.masked_update(jnp.zeros(2), P, y, H, R, jnp.array([True, True]),
-                            ekf.CHI2_1DOF_999)
+    res = ekf.masked_update(jnp.zeros(2), P, y, H, R, jnp.array([True, True]), ekf.CHI2_1DOF_999)
     assert list(np.asarray(res.gated)) == [False, True]
     assert list(np.asarray(res.used)) == [True, False]
     assert float(res.x[1]) == 0.0 and float(res.P[1, 1]) == 1.0
@@ -139,7 +140,8 @@ def test_vmap_equals_python_loop():
     y = rng.normal(size=(B, m))
     mask = rng.random((B, m)) < 0.5
     batched = jax.vmap(ekf.masked_update, in_axes=(0, 0, 0, 0, 0, 0, None))(
-        x, P, y, H, R, mask, ekf.CHI2_1DOF_99)
+        x, P, y, H, R, mask, ekf.CHI2_1DOF_99
+    )
     for b in range(B):
         one = ekf.masked_update(x[b], P[b], y[b], H[b], R[b], mask[b], ekf.CHI2_1DOF_99)
         np.testing.assert_allclose(batched.x[b], one.x, rtol=1e-12, atol=1e-13)
@@ -165,8 +167,7 @@ def test_covariance_stays_symmetric_psd_over_1e5_random_steps():
         res = ekf.masked_update(x, P, y, H, R, m, ekf.CHI2_1DOF_999)
         eig_min = jnp.linalg.eigvalsh(res.P)[0] / jnp.trace(res.P)
         asym = jnp.max(jnp.abs(res.P - res.P.T))
-        return (res.x, res.P, jnp.minimum(worst_eig, eig_min),
-                jnp.maximum(worst_asym, asym)), None
+        return (res.x, res.P, jnp.minimum(worst_eig, eig_min), jnp.maximum(worst_asym, asym)), None
 
     init = (jnp.zeros(4), jnp.eye(4) * 1e3, jnp.inf, 0.0)
     (_, P, worst_eig, worst_asym), _ = jax.jit(lambda i: jax.lax.scan(step, i, (ys, masks)))(init)

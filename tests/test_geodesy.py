@@ -38,8 +38,9 @@ def test_known_ecef_point():
     # the closed-form Heikkinen solution): lat 55.4948 deg, lon 8.4569 deg.
     xyz = jnp.array([3582105.2910, 532589.7313, 5232754.8054])
     lat, lon, h = g.ecef_to_llh(xyz)
-    assert np.degrees(float(lon)) == pytest.approx(np.degrees(np.arctan2(532589.7313,
-                                                                          3582105.2910)))
+    assert np.degrees(float(lon)) == pytest.approx(
+        np.degrees(np.arctan2(532589.7313, 3582105.2910))
+    )
     assert 55.0 < np.degrees(float(lat)) < 56.0
     assert 0.0 < float(h) < 100.0
     np.testing.assert_allclose(g.llh_to_ecef(jnp.stack([lat, lon, h])), xyz, atol=5e-9)
@@ -48,8 +49,13 @@ def test_known_ecef_point():
 def test_llh_ecef_round_trip_everywhere():
     rng = np.random.default_rng(0)
     n = 20000
-    llh = jnp.array(np.c_[rng.uniform(-np.pi / 2, np.pi / 2, n),
-                          rng.uniform(-np.pi, np.pi, n), rng.uniform(-500.0, 1e4, n)])
+    llh = jnp.array(
+        np.c_[
+            rng.uniform(-np.pi / 2, np.pi / 2, n),
+            rng.uniform(-np.pi, np.pi, n),
+            rng.uniform(-500.0, 1e4, n),
+        ]
+    )
     llh = llh.at[:4, 0].set(jnp.array([np.pi / 2, -np.pi / 2, 0.0, 1e-12]))
     back = jax.vmap(g.ecef_to_llh)(jax.vmap(g.llh_to_ecef)(llh))
     err = np.abs(np.asarray(back - llh))
