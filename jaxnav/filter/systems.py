@@ -31,6 +31,7 @@ class NavSigmas(eqx.Module):
     vel_m_s: float = 0.3
     roll_pitch_rad: float = 0.01  # ~0.6 deg from levelling
     azimuth_rad: float = 0.05  # ~3 deg from GNSS course over ground
+    odo_speed_m_s: float = 0.3  # odometer scale error ~1 % of a 30 m/s top speed
 
 
 def _pos_std_llh(llh, sigma_m):
@@ -43,11 +44,51 @@ def _place(std, layout: StateLayout, name, value):
 
 
 class RissSystem(eqx.Module):
-    """3D RISS (seeds 000/002) with its 16-state (S000) or 9-state (S002) error model."""
+    """3D RISS (seeds 000/002) with its 16-state (S000) or 9-state (S002) error model.
+
+    Beyond the seeds' models (whose position, velocity and azimuth rows have no direct process
+    noise, S000 eq 4.32ff), two white-noise inputs keep the filter consistent with real sensors:
+    the vertical gyro's angle random walk drives the azimuth, and the odometer's white noise and
+    quantisation (a reading error of ``speed_noise_m_s`` every ``input_interval_s``) drive the
+    along-track velocity and position. Both default to 0 (the seeds' form).
+    """
 
     layout: StateLayout = eqx.field(static=True, default=RISS16)
     params: riss_errors.RissNoiseParams = eqx.field(default_factory=riss_errors.RissNoiseParams)
     lever_b: jax.Array = eqx.field(default_factory=lambda: jnp.zeros(3))
+    gyro_arw_rad_sqrt_s: float = 0.0
+    speed_noise_m_s: float = 0.0
+    input_interval_s: float = 1.0
+    epoch_interval_s: float = 1.0
+
+    @classmethod
+    def for_sensors(cls, grade, odometer, lever_b, input_interval_s, epoch_interval_s=1.0,
+                    layout: StateLayout = RISS16, typical_turn_rate_rad_s=0.1,
+                    typical_accel_m_s2=1.0):
+        """A RISS whose stochastic model follows simulated / datasheet sensor figures.
+
+        Gyro bias: GM with the grade's in-run sigma, widened in quadrature by the scale-factor
+        error at a typical turn rate (the RISS model has no scale-factor state); accelerometer
+        bias: the grade's in-run GM; odometer acceleration: the scale factor times a typical
+        acceleration (at least the default 0.005 m/s^2); speed noise: white noise plus the
+        quantisation's q / sqrt(12).
+        """
+        base = riss_errors.RissNoiseParams()
+        gyro_sigma = jnp.hypot(
+            grade.gyro_bias_gm_sigma_rad_s, grade.gyro_scale_turn_on * typical_turn_rate_rad_s
+        )
+        params = riss_errors.RissNoiseParams(
+            gyro_bias_beta_1_s=1.0 / grade.gyro_bias_gm_tau_s,
+            gyro_bias_sigma_rad_s=float(gyro_sigma),
+            accel_bias_beta_1_s=1.0 / grade.accel_bias_gm_tau_s,
+            accel_bias_sigma_m_s2=float(grade.accel_bias_gm_sigma_m_s2),
+            odo_accel_sigma_m_s2=max(
+                base.odo_accel_sigma_m_s2, odometer.scale_turn_on * typical_accel_m_s2
+            ),
+        )
+        speed = float(jnp.hypot(odometer.noise_std_m_s, odometer.quantum_m_s / jnp.sqrt(12.0)))
+        return cls(layout, params, jnp.asarray(lever_b, jnp.float64),
+                   float(grade.gyro_arw_rad_sqrt_s), speed, input_interval_s, epoch_interval_s)
 
     def propagate(self, nav: riss.RissState, sensors: riss.RissSensorErrors, samples, dt):
         """Mechanize the epoch's raw ``RissInput`` samples [K] with the current sensor estimates."""
@@ -62,8 +103,46 @@ class RissSystem(eqx.Module):
         return nav, mean
 
     def dynamics(self, nav, mean_inputs, sensors):
+        """Seed F, G, Qc plus the white-noise columns of the class docstring.
+
+        Azimuth: PSD ARW^2. Odometer reading noise sigma_s every dt_in: along-track position
+        PSD sigma_s^2 dt_in (a random walk of the integrated speed error) and, since the RISS
+        velocity is re-read every input, along-track velocity PSD sigma_s^2 / dt_epoch (its
+        variance grows by sigma_s^2 per epoch until Doppler/position updates pull it back).
+        """
         fn = riss_errors.riss16_dynamics if self.layout == RISS16 else riss_errors.riss9_dynamics
-        return fn(nav, mean_inputs, self.params, sensors)
+        F, G, Qc = fn(nav, mean_inputs, self.params, sensors)
+        forward = jnp.stack(
+            [
+                jnp.sin(nav.azimuth) * jnp.cos(nav.pitch),
+                jnp.cos(nav.azimuth) * jnp.cos(nav.pitch),
+                jnp.sin(nav.pitch),
+            ]
+        )
+        n = self.layout.size
+        pos, vel = self.layout.sl("pos"), self.layout.sl("vel")
+        up = jnp.array([0.0, 0.0, 1.0])
+        G_extra = jnp.zeros((n, 5))
+        G_extra = G_extra.at[self.layout.i("azimuth"), 0].set(1.0)
+        G_extra = G_extra.at[pos, 1].set(geodesy.llh_rate_matrix(nav.llh) @ forward)
+        G_extra = G_extra.at[vel, 2].set(forward)
+        G_extra = G_extra.at[pos, 3].set(up)
+        G_extra = G_extra.at[vel, 4].set(up)
+        # The pitch is re-derived every input from (f_y - a_od) / g, and a_od differences two
+        # noisy speed readings: pitch noise sqrt(2) sigma_s / (dt_in g) tilts the velocity,
+        # v_u error = v sigma_p (white, like the speed error itself).
+        dt_in, dt_ep = self.input_interval_s, self.epoch_interval_s
+        s2 = self.speed_noise_m_s**2
+        g = geodesy.normal_gravity(nav.llh[0], nav.llh[2])
+        sigma_pitch = jnp.sqrt(2.0) * self.speed_noise_m_s / (dt_in * g)
+        vu2 = (jnp.linalg.norm(nav.vel_enu) * sigma_pitch) ** 2
+        q_extra = jnp.stack(
+            [self.gyro_arw_rad_sqrt_s**2, s2 * dt_in, s2 / dt_ep, vu2 * dt_in, vu2 / dt_ep]
+        )
+        G = jnp.concatenate([G, G_extra], axis=1)
+        m = Qc.shape[0]
+        Qc = jnp.zeros((m + 5, m + 5)).at[:m, :m].set(Qc).at[m:, m:].set(jnp.diag(q_extra))
+        return F, G, Qc
 
     def C_b_l(self, nav: riss.RissState):
         return attitude.dcm_from_euler(jnp.stack([nav.roll, nav.pitch, nav.azimuth]))
@@ -103,7 +182,7 @@ class RissSystem(eqx.Module):
         std = _place(std, self.layout, "pitch", p.pitch_sigma_rad)
         std = _place(std, self.layout, "accel_bias_x", p.accel_bias_sigma_m_s2)
         std = _place(std, self.layout, "accel_bias_y", p.accel_bias_sigma_m_s2)
-        std = _place(std, self.layout, "odo_speed", 0.1)
+        std = _place(std, self.layout, "odo_speed", sig.odo_speed_m_s)
         return std
 
     def zero_sensors(self):

@@ -132,11 +132,18 @@ def _gnss_obs(obs: observations.Observations, code_band0: int, broadcast: bool) 
     )
 
 
-def realize(key, geo: Geometry, cfg: ScenarioConfig, single_frequency: bool = False) -> Realization:
+def realize(
+    key,
+    geo: Geometry,
+    cfg: ScenarioConfig,
+    single_frequency: bool = False,
+    broadcast: bool = False,
+) -> Realization:
     """One Monte-Carlo realisation: sensor errors + GNSS errors, packed per epoch.
 
-    ``single_frequency`` selects C1 + broadcast orbits/clocks (SF users) instead of P1/P2 +
-    precise products.
+    ``single_frequency`` puts the C/A code (C1) in band 0 instead of P1 (S000's SF user, who
+    also used IGS precise products); ``broadcast`` gives the filter broadcast-quality orbits and
+    clocks instead of precise ones (S002 ch. 4 real-time users).
     """
     k_imu, k_odo, k_obs = jax.random.split(key, 3)
     truth = geo.truth
@@ -158,7 +165,7 @@ def realize(key, geo: Geometry, cfg: ScenarioConfig, single_frequency: bool = Fa
         with_truth=False,
     )
     band0 = signals.CODE_C1 if single_frequency else signals.CODE_P1
-    gobs = _gnss_obs(obs, band0, single_frequency)
+    gobs = _gnss_obs(obs, band0, broadcast)
 
     n_ep = geo.truth_ep.time_s.shape[0] - 1
     k = int(round(cfg.epoch_interval_s * cfg.imu_rate_hz))
@@ -212,10 +219,11 @@ def initial_ins_state(geo: Geometry):
 
 
 def iterate_realizations(
-    keys, geo: Geometry, cfg: ScenarioConfig, chunk: int = 64, single_frequency: bool = False
+    keys, geo: Geometry, cfg: ScenarioConfig, chunk: int = 64, single_frequency: bool = False,
+    broadcast: bool = False,
 ) -> Iterator[Realization]:
     """Yield vmapped realisations ``chunk`` keys at a time (memory bounded by one chunk)."""
-    fn = jax.jit(jax.vmap(lambda k: realize(k, geo, cfg, single_frequency)))
+    fn = jax.jit(jax.vmap(lambda k: realize(k, geo, cfg, single_frequency, broadcast)))
     keys = np.asarray(keys)
     for start in range(0, keys.shape[0], chunk):
         yield fn(jnp.asarray(keys[start : start + chunk]))
