@@ -9,13 +9,13 @@ Rows (each family switched by a static ``LooseConfig`` flag, each row also maske
 
 - GNSS position (S002 eq 4.23-4.24): the antenna position predicted through the lever arm
   (``InsSystem.antenna``) minus the fix, in local ENU metres,
-  dz = [R_N+h) cos(lat) d_lon, (R_M+h) d_lat, d_h] of (llh_ant_hat - llh_fix), with H the exact
+  dz = [(R_N+h) cos(lat) d_lon, (R_M+h) d_lat, d_h] of (llh_ant_hat - llh_fix), with H the exact
   antenna Jacobian scaled to metres; R = the fix's ENU covariance times ``pos_cov_scale`` (S002
   scales R with DOP and satellite count but gives no numbers: one factor here).
 - GNSS velocity: ENU antenna velocity (lever-arm rotation term included) minus the fix.
 - NHC, odometer speed (optional scale-factor state ``odo_scale``), ZUPT + ZARU on detected
   standstill (``filter.constraints``). S002: ZUPT is not applied while a GNSS velocity is used
-  (``zupt_without_gnss_vel``).
+  (``zupt_without_gnss_vel``); the ZARU (gyro only) is.
 
 Timing. Every row refers to the end of the epoch t_k. The lever-arm terms need the body rate at
 t_k: the epoch-mean rate lags it by half an epoch, which in an urban turn entry (yaw acceleration
@@ -31,8 +31,20 @@ In-motion alignment (``align_from_gnss``): the heading is the course over ground
 velocity, atan2(v_E, v_N), which assumes no side slip and the IMU forward axis along the vehicle's
 (heading error ~ sigma_v / speed: 0.3 deg at 10 m/s with 0.05 m/s velocity noise); roll and pitch
 come from levelling the mean specific force (valid at rest or at constant velocity: an
-unmodelled acceleration a tilts them by ~a/g rad) or, without IMU data, roll = 0 and pitch =
-the velocity's flight-path angle atan2(v_U, v_H) (a land vehicle's pitch, no slip).
+unmodelled acceleration a tilts them by ~a/g rad, and an accelerometer bias b by b/g) or,
+without IMU data, roll = 0 and pitch = the velocity's flight-path angle atan2(v_U, v_H).
+
+With ``align_in_motion`` the filter can start levelled but with an unknown heading (a MEMS IMU
+cannot gyrocompass), e.g. at a standstill where ZUPT/ZARU calibrate the gyros. Until the first
+fix faster than ``align_min_speed_m_s``: no row informs the heading (its H column is removed,
+its error state keeps its prior variance without correlations and is not fed back: what an EKF
+would learn about a heading tens of degrees off is nonlinear garbage), the position rows absorb
+the unknown horizontal lever direction in R, and while moving only the vertical GNSS rows are
+used (an INS running in a wrong heading frame would otherwise push its horizontal velocity
+errors into the tilts and accelerometer biases). At that fix (``_align_in_motion``) heading,
+velocity and position are re-initialised from the fix, the tilt-error covariance is turned with
+the heading change, and the horizontal gyro-bias variance is widened by the Earth rate an unknown
+heading could hide.
 """
 
 from __future__ import annotations
@@ -402,14 +414,16 @@ def _heading_index(layout: StateLayout) -> int:
     return layout.sl("att").start + 2
 
 
-def _unknown_heading_rows(lf: LooseFilter, layout, rows: cons.Rows, C_b_l, aligned):
+def _unknown_heading_rows(lf: LooseFilter, layout, rows: cons.Rows, aligned):
     """Before the alignment no row may inform the (arbitrary) heading: its column is removed,
     and the GNSS position rows absorb the unknown horizontal direction of the antenna lever
     (variance |l_h|^2 added to the east and north rows, which come first)."""
     k = _heading_index(layout)
     H = rows.H.at[:, k].set(jnp.where(aligned, rows.H[:, k], 0.0))
     lever_h2 = jnp.sum(lf.system.lever_b[:2] ** 2)  # horizontal part for a near-level body
-    extra = jnp.zeros(rows.size).at[:2].set(jnp.where(aligned | ~lf.cfg.use_pos, 0.0, lever_h2))
+    if not lf.cfg.use_pos:
+        return rows._replace(H=H)
+    extra = jnp.zeros(rows.size).at[:2].set(jnp.where(aligned, 0.0, lever_h2))
     return rows._replace(H=H, R=rows.R + jnp.diag(jnp.where(rows.mask, extra, 0.0)))
 
 
@@ -509,7 +523,7 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
     names = list(families)
     rows = cons.sanitize(cons.stack_rows(*families.values()))
     if cfg.align_in_motion:
-        rows = _unknown_heading_rows(lf, layout, rows, C, aligned)
+        rows = _unknown_heading_rows(lf, layout, rows, aligned)
     res = ekf.masked_update(
         jnp.zeros(layout.size), P, rows.dz, rows.H, rows.R, rows.mask, cfg.gate_chi2
     )
