@@ -133,17 +133,21 @@ def llh_rate_matrix(llh):
 
 
 def llh_to_ecef_jacobian(llh):
-    """Jacobian L = d(pos_ecef)/d(lat, lon, h) of S000 eq 4.66 (R_N treated as constant)."""
+    """Jacobian L = d(pos_ecef)/d(lat, lon, h), exact.
+
+    S000 eq 4.66 (= S002 5.25) prints R_N + h in the latitude column; differentiating R_N(lat)
+    too gives R_M + h (0.5 % different at mid latitudes): the physically correct form is used.
+    """
     lat, lon, h = llh[0], llh[1], llh[2]
-    _, r_n = radii(lat)
+    r_m, r_n = radii(lat)
     sp, cp = jnp.sin(lat), jnp.cos(lat)
     sl, cl = jnp.sin(lon), jnp.cos(lon)
     z = jnp.zeros_like(sp)
     return jnp.array(
         [
-            [-(r_n + h) * sp * cl, -(r_n + h) * cp * sl, cp * cl],
-            [-(r_n + h) * sp * sl, (r_n + h) * cp * cl, cp * sl],
-            [(r_n * (1.0 - E2_WGS84) + h) * cp, z, sp],
+            [-(r_m + h) * sp * cl, -(r_n + h) * cp * sl, cp * cl],
+            [-(r_m + h) * sp * sl, (r_n + h) * cp * cl, cp * sl],
+            [(r_m + h) * cp, z, sp],
         ]
     )
 

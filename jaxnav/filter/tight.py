@@ -90,9 +90,10 @@ def initial_carry(
 ):
     """Start from a navigation state (e.g. GNSS-initialised) and the first epoch's code.
 
-    The receiver clock starts at the median code residual; per-slot states start on the slots'
-    first use (``tracked`` all false). ``sensors0``: initial sensor-error estimates (e.g. from
-    ``system.calibrate_static``); zero by default.
+    The receiver clock starts at the median code residual (0 if the epoch has no code: the
+    first epoch with data then re-levels it, see ``_clock_jump``); per-slot states start on the
+    slots' first use (``tracked`` all false). ``sensors0``: initial sensor-error estimates
+    (e.g. from ``system.calibrate_static``); zero by default.
     """
     sigmas = NavSigmas() if sigmas is None else sigmas
     layout = tf.layout
@@ -182,6 +183,27 @@ def _prefit_mask(cfg: ppp.PppConfig, rows: ppp.Rows):
     return rows.mask & ~bad_slot[rows.slot]
 
 
+def _clock_jump(cfg: ppp.PppConfig, layout: StateLayout, gnss_est, P, rows: ppp.Rows):
+    """Re-level the receiver clock when every code residual moved together by more than the
+    pre-fit threshold (a millisecond clock jump, or a first epoch without data): the clock
+    estimate takes the median code residual and its variance restarts, so the innovation gate
+    cannot lock the filter out. Rows are linear in the clock, so dz is shifted, not recomputed.
+    """
+    if not layout.has("clock_bias"):
+        return gnss_est, P, rows
+    i = layout.i("clock_bias")
+    is_code = (rows.kind == ppp.KIND_CODE) & rows.mask
+    med = jnp.nan_to_num(jnp.nanmedian(jnp.where(is_code, rows.dz, jnp.nan)))
+    jump = jnp.where(jnp.abs(med) > cfg.prefit_code_m, med, 0.0)
+    gnss_est = gnss_est.at[i].add(-jump)
+    dz = rows.dz - jump * rows.H[:, i]
+    keep = jnp.arange(layout.size) != i
+    P_reset = jnp.where(keep[:, None] & keep[None, :], P, 0.0).at[i, i].set(
+        cfg.clock_init_sigma_m**2
+    )
+    return gnss_est, jnp.where(jump != 0.0, P_reset, P), rows._replace(dz=dz)
+
+
 def _update_with_postfit(cfg: ppp.PppConfig, P, rows: ppp.Rows, mask):
     """Masked update; if the worst normalised post-fit residual exceeds the threshold, drop it
     (its whole satellite for a code row) and update again from the same prior."""
@@ -224,6 +246,7 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput):
     rows, _ = ppp.measurement_rows(
         cfg, layout, tf.slots, inp.obs, rx, gnss_est, inp.keep, hatch, inp.day_of_year
     )
+    gnss_est, P, rows = _clock_jump(cfg, layout, gnss_est, P, rows)
     mask = _prefit_mask(cfg, rows)
     res = _update_with_postfit(cfg, P, rows, mask)
 
