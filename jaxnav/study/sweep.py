@@ -422,6 +422,10 @@ def _one_scenario(st: _Static, ctx: _Context, s: _Batch):
 
 def _make_evaluate(st: _Static, mesh: Mesh):
     local = jax.vmap(partial(_one_scenario, st), in_axes=(None, 0))
+    if mesh.devices.size == 1:
+        # One device: a plain vmap. (A one-device shard_map adds nothing, and a demo run on the
+        # CPU once stalled inside it with no CPU use.)
+        return jax.jit(local)
     sharded = jax.shard_map(
         local, mesh=mesh, in_specs=(Spec(), Spec("batch")), out_specs=Spec("batch"),
         check_vma=False,

@@ -1,0 +1,157 @@
+"""The simulated scenario factory the sweep engine drives (``study.sweep.run_sweep``).
+
+A factory turns a study's ``[scenario]`` table into (a) one drive (geometry, truth, satellite
+slots), shared by every mode, system and realisation, and (b) per (mode, system, seed) a filter,
+its initial carry and the realisation's stacked inputs (``sweep.Problem``).
+
+``[scenario]`` keys (all optional):
+
+    drive_seed = 0            # random drive generator seed
+    drive_style = "mixed"     # mixed | urban | suburban | highway
+    duration_s = 900          # drive length
+    imu_grade = "crossbow_imu300cc"   # RISS sensors (S000); "ins" systems use ins_grade
+    ins_grade = "span_cpt"
+    odometer = "obd2_odometer"
+    iono_scale = 1.0          # multiplies the simulated ionosphere (1 = 2020 solar minimum)
+
+Systems: ``riss`` (S000's 16-state RISS, 1 Hz inputs), ``riss9`` (S002's 9 + GNSS states),
+``ins15`` and ``ins21`` (full IMU at 100 Hz).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.filter import loose, systems, tight
+from jaxnav.filter.states import INS15, INS21, RISS9, RISS16
+from jaxnav.gnss import models, ppp
+from jaxnav.sim import constellation, observations, scenario, sensors
+from jaxnav.study import metrics
+from jaxnav.study.sweep import Problem, Timeline
+
+SYSTEMS = ("riss", "riss9", "ins15", "ins21")
+_SCENARIO_KEYS = {
+    "drive_seed": int,
+    "drive_style": str,
+    "duration_s": float,
+    "imu_grade": str,
+    "ins_grade": str,
+    "odometer": str,
+    "iono_scale": float,
+}
+_STATIC_CALIBRATION_EPOCHS = 30  # the drives start with a 60 s standstill
+
+
+class SimFactory:
+    """Builds sweep problems from simulated drives (module docstring)."""
+
+    modes = models.MODES
+    systems = SYSTEMS
+
+    def __init__(self, table: dict | None = None):
+        table = dict(table or {})
+        unknown = set(table) - set(_SCENARIO_KEYS)
+        if unknown:
+            raise ValueError(
+                f"[scenario] has unknown keys {sorted(unknown)}; allowed: {sorted(_SCENARIO_KEYS)}"
+            )
+        self.table = {k: _SCENARIO_KEYS[k](v) for k, v in table.items()}
+        t = self.table
+        grades = [t.get("imu_grade", "crossbow_imu300cc"), t.get("ins_grade", "span_cpt")]
+        for name in grades + [t.get("odometer", "obd2_odometer")]:
+            if not hasattr(sensors, name):
+                raise ValueError(f"[scenario] sensor preset {name!r} does not exist in sim.sensors")
+        self.cfg = scenario.ScenarioConfig(
+            drive_seed=t.get("drive_seed", 0),
+            drive_style=t.get("drive_style", "mixed"),
+            duration_s=t.get("duration_s", 900.0),
+            imu_grade=grades[0],
+            odometer=t.get("odometer", "obd2_odometer"),
+            obs_params=observations.ObsParams(iono_scale=t.get("iono_scale", 1.0)),
+        )
+        self.ins_grade = grades[1]
+
+    def fingerprint(self) -> str:
+        return json.dumps(self.table, sort_keys=True)
+
+    @functools.cached_property
+    def geo(self) -> scenario.Geometry:
+        return scenario.build_geometry(self.cfg)
+
+    @functools.cached_property
+    def _sky(self):
+        """Elevation, azimuth [T, S] of the slots along the true antenna track (epochs 1..)."""
+        g = self.geo
+        el, az = constellation.elevations(g.orbits, g.truth_ep.time_s[1:], g.ant_pos_ecef[1:])
+        idx = g.slot_table.sat_index
+        occ = g.slot_table.occupied[None, :]
+        return jnp.where(occ, el[:, idx], -jnp.pi / 2), jnp.where(occ, az[:, idx], 0.0)
+
+    def timeline(self, study_cfg) -> Timeline:
+        n = int(self.geo.truth_ep.time_s.shape[0]) - 1
+        return Timeline(n, self.cfg.epoch_interval_s, np.asarray(self.geo.truth_ep.event[1:]))
+
+    def _system(self, name: str):
+        cfg = self.cfg
+        if name.startswith("riss"):
+            return systems.RissSystem.for_sensors(
+                getattr(sensors, cfg.imu_grade)(),
+                getattr(sensors, cfg.odometer)(),
+                cfg.lever_b_m,
+                1.0 / cfg.riss_rate_hz,
+                cfg.epoch_interval_s,
+                layout=RISS16 if name == "riss" else RISS9,
+            )
+        layout = INS15 if name == "ins15" else INS21
+        model = loose.imu_error_model(getattr(sensors, self.ins_grade)())
+        return systems.InsSystem(layout, model, jnp.asarray(cfg.lever_b_m, jnp.float64))
+
+    def filter(self, mode: str, system_name: str) -> tight.TightFilter:
+        cfg, geo = self.cfg, self.geo
+        system = self._system(system_name)
+        rate = cfg.riss_rate_hz if system_name.startswith("riss") else cfg.imu_rate_hz
+        pcfg = ppp.PppConfig(
+            mode=mode,
+            n_slots=int(geo.slots.system.shape[0]),
+            estimate_zwd=mode in models.PHASE_MODES,
+        )
+        return tight.TightFilter(system, pcfg, geo.slots, 1.0 / rate, cfg.epoch_interval_s)
+
+    def start(self, tf: tight.TightFilter, system_name: str, real: scenario.Realization):
+        """Initial carry: truth-initialised navigation state, standstill sensor calibration."""
+        geo = self.geo
+        if system_name.startswith("riss"):
+            nav0, inputs = scenario.initial_riss_state(geo), real.riss_inputs
+        else:
+            nav0, inputs = scenario.initial_ins_state(geo), real.ins_inputs
+        head = jax.tree.map(
+            lambda x: x[:_STATIC_CALIBRATION_EPOCHS].reshape(-1, *x.shape[2:]), inputs.samples
+        )
+        sens0 = tf.system.calibrate_static(nav0, head, tf.imu_dt_s)
+        return tight.initial_carry(tf, nav0, real.obs0, sensors0=sens0), inputs
+
+    def build(self, study_cfg, mode: str, system_name: str, seed: int) -> Problem:
+        geo = self.geo
+        tf = self.filter(mode, system_name)
+        real = _realize(self, int(seed), mode == "sf_code")
+        carry0, inputs = self.start(tf, system_name, real)
+        t = geo.truth_ep
+        truth = metrics.track(t.llh[1:], t.vel_enu[1:], t.euler[1:])
+        el, az = self._sky
+        return Problem(tf, carry0, inputs, truth, el, inputs.obs.available, az)
+
+
+@functools.lru_cache(maxsize=4)
+def _realize_cached(factory_id, seed, single_frequency, factory):
+    return jax.jit(lambda k: scenario.realize(k, factory.geo, factory.cfg, single_frequency))(
+        jax.random.PRNGKey(seed)
+    )
+
+
+def _realize(factory: SimFactory, seed: int, single_frequency: bool):
+    return _realize_cached(id(factory), seed, single_frequency, factory)
