@@ -1,0 +1,1 @@
+"""Command-line applications (each exposes ``main(argv) -> int``; ``jaxnav.cli`` dispatches)."""
