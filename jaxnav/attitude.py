@@ -45,6 +45,37 @@ def dcm_from_euler(euler_rpa):
     )
 
 
+def dcm_euler_partials(euler_rpa):
+    """Partial derivatives (dC/droll, dC/dpitch, dC/dazimuth) of ``dcm_from_euler``."""
+    r, p, a = euler_rpa[0], euler_rpa[1], euler_rpa[2]
+    sr, cr = jnp.sin(r), jnp.cos(r)
+    sp, cp = jnp.sin(p), jnp.cos(p)
+    sa, ca = jnp.sin(a), jnp.cos(a)
+    z = jnp.zeros_like(r)
+    d_roll = jnp.array(
+        [
+            [-ca * sr + sa * sp * cr, z, ca * cr + sa * sp * sr],
+            [sa * sr + ca * sp * cr, z, -sa * cr + ca * sp * sr],
+            [-cp * cr, z, -cp * sr],
+        ]
+    )
+    d_pitch = jnp.array(
+        [
+            [sa * cp * sr, -sa * sp, -sa * cp * cr],
+            [ca * cp * sr, -ca * sp, -ca * cp * cr],
+            [sp * sr, cp, -sp * cr],
+        ]
+    )
+    d_azimuth = jnp.array(
+        [
+            [-sa * cr + ca * sp * sr, ca * cp, -sa * sr - ca * sp * cr],
+            [-ca * cr - sa * sp * sr, -sa * cp, -ca * sr + sa * sp * cr],
+            [z, z, z],
+        ]
+    )
+    return d_roll, d_pitch, d_azimuth
+
+
 def euler_from_dcm(C_b_l):
     """(roll, pitch, azimuth) from C_b_l: p = asin(C32), r = atan2(-C31, C33), A = atan2(C12, C22).
 

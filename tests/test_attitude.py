@@ -93,3 +93,10 @@ def test_wrap_angle():
         [-np.pi / 2, np.pi / 2, 0.1],
         atol=1e-15,
     )
+
+
+def test_dcm_euler_partials_match_autodiff():
+    e = jnp.array([0.1, -0.25, 2.2])
+    J = jax.jacfwd(att.dcm_from_euler)(e)  # [3, 3, 3]
+    for k, d in enumerate(att.dcm_euler_partials(e)):
+        np.testing.assert_allclose(d, J[:, :, k], atol=1e-15)

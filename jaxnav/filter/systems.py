@@ -148,22 +148,23 @@ class RissSystem(eqx.Module):
         return attitude.dcm_from_euler(jnp.stack([nav.roll, nav.pitch, nav.azimuth]))
 
     def antenna(self, nav: riss.RissState, mean_inputs, sensors, layout_full: StateLayout):
-        """Antenna at llh + D^-1 C l. The azimuth column is d(C l)/dA = [u_N, -u_E, 0] (ENU).
+        """Antenna at llh + D^-1 C l, with the lever arm's roll, pitch and azimuth columns.
 
         The RISS velocity is the odometer's; the lever-arm rotation term w x l (< 1 cm/s for a
         roof antenna in a 0.1 rad/s turn) is neglected.
         """
-        lever_l = self.C_b_l(nav) @ self.lever_b
+        euler = jnp.stack([nav.roll, nav.pitch, nav.azimuth])
+        lever_l = attitude.dcm_from_euler(euler) @ self.lever_b
         llh_ant = nav.llh + geodesy.llh_rate_matrix(nav.llh) @ lever_l
         C_l_e = geodesy.C_l_e(llh_ant[0], llh_ant[1])
         n = layout_full.size
-        J_pos = (
-            jnp.zeros((3, n))
-            .at[:, layout_full.sl("pos")]
-            .set(geodesy.llh_to_ecef_jacobian(llh_ant))
-        )
-        dlever_daz = jnp.stack([lever_l[1], -lever_l[0], 0.0])
-        J_pos = J_pos.at[:, layout_full.i("azimuth")].set(C_l_e @ dlever_daz)
+        J_pos = jnp.zeros((3, n))
+        J_pos = J_pos.at[:, layout_full.sl("pos")].set(geodesy.llh_to_ecef_jacobian(llh_ant))
+        # Attitude columns d(C l)/d(angle) (for the azimuth: [u_N, -u_E, 0] in ENU).
+        partials = attitude.dcm_euler_partials(euler)
+        for name, dC in zip(("roll", "pitch", "azimuth"), partials, strict=True):
+            if layout_full.has(name):
+                J_pos = J_pos.at[:, layout_full.i(name)].set(C_l_e @ (dC @ self.lever_b))
         J_vel = jnp.zeros((3, n)).at[:, layout_full.sl("vel")].set(C_l_e)
         return Receiver(geodesy.llh_to_ecef(llh_ant), C_l_e @ nav.vel_enu, llh_ant, J_pos, J_vel)
 
