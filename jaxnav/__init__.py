@@ -4,5 +4,10 @@ import jax
 
 # GNSS ranges are ~2e7 m and cm-level work needs float64: enable it before any array is made.
 jax.config.update("jax_enable_x64", True)
+# Synchronous dispatch on the CPU: with asynchronous dispatch, sweeps on this 2-core machine
+# stalled intermittently (about 1 run in 10) in a result transfer with no CPU in use, waiting on
+# a computation that never completed. The computations are large jitted scans, so running them
+# one at a time costs nothing measurable.
+jax.config.update("jax_cpu_enable_async_dispatch", False)
 
 __version__ = "0.1.0"
