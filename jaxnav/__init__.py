@@ -1,6 +1,17 @@
 """jaxnav: JAX-vectorised GNSS PPP / INS / RISS integration for Monte-Carlo outage studies."""
 
-import jax
+import os
+
+# Single-threaded Eigen inside XLA:CPU. Our kernels are small matrices inside long scans, which
+# gain nothing from Eigen's intra-op thread pool; with it, runs on this 2-core machine stalled
+# intermittently (every thread parked on a futex, the caller waiting for a result that never
+# came). Appended to any user XLA_FLAGS; must precede the CPU backend's creation.
+if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false"
+    ).strip()
+
+import jax  # noqa: E402
 
 # GNSS ranges are ~2e7 m and cm-level work needs float64: enable it before any array is made.
 jax.config.update("jax_enable_x64", True)
