@@ -225,7 +225,10 @@ def _bf_batch(prob, start, length, n_keep, ramp, key_id, *, policy, metric_windo
             metric_window=metric_window,
         )
 
-    return jax.vmap(one)(start, length, n_keep, ramp, key_id)
+    # Batches of 8 (lax.map) rather than one vmap over every scenario of a realization: the
+    # single 256-wide vmap of whole-drive runs stalled XLA:CPU (all threads parked on futexes)
+    # in several full-suite runs on 2 cores (jax 0.10.2).
+    return jax.lax.map(lambda a: one(*a), (start, length, n_keep, ramp, key_id), batch_size=8)
 
 
 def brute_force_group(plan, factory, mode, system="cv"):
