@@ -20,7 +20,7 @@ DEMO_STUDY = {
         "realizations": 3,
         "seed": 0,
         "recovery_s": 30,
-        "chunk_size": 256,
+        "chunk_size": 64,
         "max_traces": 10,
     },
     "placement": {"kind": "grid", "convergence_s": 300, "spacing_s": 75},

@@ -15,7 +15,7 @@ and the engine's chunk size. Example::
     realizations = 4                   # noise realizations: seeds seed .. seed + n - 1
     seed = 0
     recovery_s = 60                    # evaluated after each outage (re-convergence)
-    chunk_size = 256                   # scenarios per engine chunk (bounds memory)
+    chunk_size = 64                    # scenarios per engine chunk (bounds memory)
     max_traces = 16                    # per (mode, system): per-epoch error kept for plots
     metric_window = "core"             # "core" or "with_ramp"
 
@@ -107,7 +107,9 @@ class StudyConfig:
     realizations: int = 1
     seed: int = 0
     recovery_s: float = 60.0  # chosen: one minute shows the re-convergence of code modes
-    chunk_size: int = 256  # chosen: a few MB of window outputs per chunk
+    # chosen: 64. Bounds memory; also, chunks of >~108 scenarios stalled jaxlib's batched
+    # matrix solve on 2 CPU cores (all threads parked), with jax/jaxlib 0.10.2.
+    chunk_size: int = 64
     max_traces: int = 16  # chosen: enough curves for one error-growth figure per mode
     metric_window: str = "core"
     placement: PlacementConfig = field(default_factory=PlacementConfig)
