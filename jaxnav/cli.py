@@ -99,6 +99,9 @@ def main(argv=None) -> int:
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=_delegate(name))
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in ("ppp", "lc"):  # their own parsers take every remaining argument
+        return importlib.import_module(f"jaxnav.apps.{argv[0]}").main(argv[1:])
     args = parser.parse_args(argv)
     return args.func(args)
 

@@ -64,3 +64,11 @@ def test_console_script_help():
     )
     for command in ("demo", "sweep", "ppp", "lc"):
         assert command in r.stdout
+
+
+@pytest.mark.parametrize("command", ["ppp", "lc"])
+def test_real_data_commands_are_wired(command, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main([command, "--help"])
+    assert exc.value.code == 0
+    assert f"jaxnav {command}" in capsys.readouterr().out
