@@ -188,20 +188,21 @@ def gnss_initial_std(cfg: PppConfig, layout: StateLayout):
     return std
 
 
+_PER_SLOT_BLOCKS = ("amb", "amb1", "amb2", "iono")
+
+
 def slot_state_resets(cfg: PppConfig, layout: StateLayout, reset_slot):
-    """Per-state reset flags and variances for slots that rose, slipped or returned ([S] bool)."""
+    """Per-state reset flags and variances for slots that rose, slipped or returned ([S] bool).
+
+    The variances are the initial ones of ``gnss_initial_std`` on the per-slot blocks.
+    """
     flags = jnp.zeros(layout.size, bool)
-    var = jnp.zeros(layout.size)
-    per_slot = {
-        "amb": cfg.ambiguity_init_sigma_m,
-        "amb1": cfg.ambiguity_init_sigma_m,
-        "amb2": cfg.ambiguity_init_sigma_m,
-        "iono": cfg.iono_init_sigma_m,
-    }
-    for name, sigma in per_slot.items():
+    in_block = jnp.zeros(layout.size, bool)
+    for name in _PER_SLOT_BLOCKS:
         if layout.has(name):
             flags = flags.at[layout.sl(name)].set(reset_slot)
-            var = var.at[layout.sl(name)].set(sigma**2)
+            in_block = in_block.at[layout.sl(name)].set(True)
+    var = jnp.where(in_block, gnss_initial_std(cfg, layout) ** 2, 0.0)
     return flags, var
 
 
