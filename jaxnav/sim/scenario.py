@@ -81,7 +81,10 @@ def _antenna(truth_ep: trajectory.Truth, lever_b):
 
 def build_geometry(cfg: ScenarioConfig) -> Geometry:
     """Truth trajectory, antenna track and the fixed satellite slots of a drive."""
-    profile = trajectory.random_drive(cfg.drive_seed, cfg.drive_style, cfg.duration_s)
+    if cfg.drive_style == "airborne":
+        profile = trajectory.random_airborne(cfg.drive_seed, cfg.duration_s)
+    else:
+        profile = trajectory.random_drive(cfg.drive_seed, cfg.drive_style, cfg.duration_s)
     truth = trajectory.generate_truth(profile, cfg.imu_rate_hz, cfg.duration_s)
     truth_ep = trajectory.truth_at_epochs(truth, cfg.epoch_interval_s)
     lever = jnp.asarray(cfg.lever_b_m, jnp.float64)

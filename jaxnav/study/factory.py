@@ -13,6 +13,10 @@ its initial carry and the realisation's stacked inputs (``sweep.Problem``).
     ins_grade = "span_cpt"
     odometer = "obd2_odometer"
     iono_scale = 1.0          # multiplies the simulated ionosphere (1 = 2020 solar minimum)
+    constellations = ["gps"]  # any of gps, glonass, galileo (S004 multi-GNSS, with ISB states)
+    slots = [16, 14, 14]      # fixed satellite slots per constellation (GPS, GLONASS, Galileo)
+    bssd = false              # between-satellite single differences (S004) instead of UD
+    drive_style = "airborne"  # also allowed: a seeded random flight (S001) instead of a drive
 
 Systems: ``riss`` (S000's 16-state RISS, 1 Hz inputs), ``riss9`` (S002's 9 + GNSS states),
 ``ins15`` and ``ins21`` (full IMU at 100 Hz).
@@ -20,6 +24,7 @@ Systems: ``riss`` (S000's 16-state RISS, 1 Hz inputs), ``riss9`` (S002's 9 + GNS
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 
@@ -29,7 +34,7 @@ import numpy as np
 
 from jaxnav.filter import loose, systems, tight
 from jaxnav.filter.states import INS15, INS21, RISS9, RISS16
-from jaxnav.gnss import models, ppp
+from jaxnav.gnss import models, ppp, signals
 from jaxnav.sim import constellation, observations, scenario, sensors
 from jaxnav.study import metrics
 from jaxnav.study.sweep import Problem, Timeline
@@ -43,7 +48,12 @@ _SCENARIO_KEYS = {
     "ins_grade": str,
     "odometer": str,
     "iono_scale": float,
+    "constellations": list,
+    "slots": list,
+    "bssd": bool,
 }
+_CONSTELLATIONS = {"gps": signals.SYS_GPS, "glonass": signals.SYS_GLO, "galileo": signals.SYS_GAL}
+_DRIVE_STYLES = ("mixed", "urban", "suburban", "highway", "airborne")
 _STATIC_CALIBRATION_EPOCHS = 30  # the drives start with a 60 s standstill
 
 
@@ -60,8 +70,33 @@ class SimFactory:
             raise ValueError(
                 f"[scenario] has unknown keys {sorted(unknown)}; allowed: {sorted(_SCENARIO_KEYS)}"
             )
+        for k, v in table.items():
+            if not isinstance(v, _SCENARIO_KEYS[k]) and not (
+                _SCENARIO_KEYS[k] is float and isinstance(v, int) and not isinstance(v, bool)
+            ):
+                raise ValueError(
+                    f"[scenario] {k} = {v!r}: expected a {_SCENARIO_KEYS[k].__name__}"
+                )
         self.table = {k: _SCENARIO_KEYS[k](v) for k, v in table.items()}
         t = self.table
+        names = t.get("constellations", ["gps"])
+        bad = [c for c in names if c not in _CONSTELLATIONS]
+        if bad or not names or "gps" not in names:
+            raise ValueError(
+                f"[scenario] constellations = {names!r}: expected a list containing 'gps' and "
+                f"optionally {sorted(set(_CONSTELLATIONS) - {'gps'})} (GPS is the reference)"
+            )
+        slots = t.get("slots", [16, 14, 14])
+        if len(slots) != 3 or not all(isinstance(n, int) and n > 0 for n in slots):
+            raise ValueError(
+                f"[scenario] slots = {slots!r}: expected three positive integers "
+                "(GPS, GLONASS, Galileo)"
+            )
+        if t.get("drive_style", "mixed") not in _DRIVE_STYLES:
+            raise ValueError(
+                f"[scenario] drive_style = {t['drive_style']!r}: expected one of {_DRIVE_STYLES}"
+            )
+        self.bssd = t.get("bssd", False)
         grades = [t.get("imu_grade", "crossbow_imu300cc"), t.get("ins_grade", "span_cpt")]
         for name in grades + [t.get("odometer", "obd2_odometer")]:
             if not hasattr(sensors, name):
@@ -72,6 +107,8 @@ class SimFactory:
             duration_s=t.get("duration_s", 900.0),
             imu_grade=grades[0],
             odometer=t.get("odometer", "obd2_odometer"),
+            systems=tuple(sorted(_CONSTELLATIONS[c] for c in set(names))),
+            slots_per_system=tuple(slots),
             obs_params=observations.ObsParams(iono_scale=t.get("iono_scale", 1.0)),
         )
         self.ins_grade = grades[1]
@@ -117,8 +154,10 @@ class SimFactory:
         rate = cfg.riss_rate_hz if system_name.startswith("riss") else cfg.imu_rate_hz
         pcfg = ppp.PppConfig(
             mode=mode,
+            systems=cfg.systems,
             n_slots=int(geo.slots.system.shape[0]),
             estimate_zwd=mode in models.PHASE_MODES,
+            bssd=self.bssd,
         )
         return tight.TightFilter(system, pcfg, geo.slots, 1.0 / rate, cfg.epoch_interval_s)
 
@@ -129,16 +168,21 @@ class SimFactory:
             nav0, inputs = scenario.initial_riss_state(geo), real.riss_inputs
         else:
             nav0, inputs = scenario.initial_ins_state(geo), real.ins_inputs
-        head = jax.tree.map(
-            lambda x: x[:_STATIC_CALIBRATION_EPOCHS].reshape(-1, *x.shape[2:]), inputs.samples
-        )
-        sens0 = tf.system.calibrate_static(nav0, head, tf.imu_dt_s)
+        if self.cfg.drive_style == "airborne":  # a flight starts moving: nothing to calibrate
+            sens0 = None
+        else:
+            head = jax.tree.map(
+                lambda x: x[:_STATIC_CALIBRATION_EPOCHS].reshape(-1, *x.shape[2:]),
+                inputs.samples,
+            )
+            sens0 = tf.system.calibrate_static(nav0, head, tf.imu_dt_s)
         return tight.initial_carry(tf, nav0, real.obs0, sensors0=sens0), inputs
 
     def build(self, study_cfg, mode: str, system_name: str, seed: int) -> Problem:
         geo = self.geo
         tf = self.filter(mode, system_name)
-        real = _realize(self, int(seed), mode == "sf_code")
+        grade = self.cfg.imu_grade if system_name.startswith("riss") else self.ins_grade
+        real = _realize(self, int(seed), mode == "sf_code", grade)
         carry0, inputs = self.start(tf, system_name, real)
         t = geo.truth_ep
         truth = metrics.track(t.llh[1:], t.vel_enu[1:], t.euler[1:])
@@ -146,14 +190,15 @@ class SimFactory:
         return Problem(tf, carry0, inputs, truth, el, inputs.obs.available, az)
 
 
-def _realize(factory: SimFactory, seed: int, single_frequency: bool):
-    """One noise realisation; the simulator is compiled once per factory and frequency plan
-    (a fresh ``jit`` per seed used to recompile it: ~4 s per realisation of a 15-min drive)."""
+def _realize(factory: SimFactory, seed: int, single_frequency: bool, imu_grade: str):
+    """One noise realisation with the IMU of ``imu_grade``. The simulator is compiled once per
+    factory, frequency plan and grade (a fresh ``jit`` per seed recompiled it: ~4 s each)."""
     cache = factory.__dict__.setdefault("_realize_fns", {})
-    fn = cache.get(single_frequency)
+    fn = cache.get((single_frequency, imu_grade))
     if fn is None:
-        geo, cfg = factory.geo, factory.cfg
-        fn = cache[single_frequency] = jax.jit(
+        geo = factory.geo
+        cfg = dataclasses.replace(factory.cfg, imu_grade=imu_grade)
+        fn = cache[(single_frequency, imu_grade)] = jax.jit(
             lambda k: scenario.realize(k, geo, cfg, single_frequency)
         )
     return fn(jax.random.PRNGKey(seed))
