@@ -19,6 +19,7 @@ jax.config.update("jax_enable_x64", True)
 # stalled intermittently (about 1 run in 10) in a result transfer with no CPU in use, waiting on
 # a computation that never completed. The computations are large jitted scans, so running them
 # one at a time costs nothing measurable.
-jax.config.update("jax_cpu_enable_async_dispatch", False)
+if os.environ.get("JAXNAV_CPU_ASYNC") != "1":
+    jax.config.update("jax_cpu_enable_async_dispatch", False)
 
 __version__ = "0.1.0"

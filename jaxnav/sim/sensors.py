@@ -275,6 +275,23 @@ def span_cpt() -> ImuGrade:
     )
 
 
+def span_cpt_in_run() -> ImuGrade:
+    """SPAN-CPT's in-run errors only: GM bias drifts and white noise, no turn-on bias, scale
+    factor or quantisation. INS15 models exactly this, so filter-consistency (NEES) studies use
+    it: any inconsistency left is the filter's, not a model mismatch."""
+    return ImuGrade.from_datasheet(
+        "NovAtel SPAN-CPT (in-run errors only)",
+        "S002 5.3.4.2 bias stability, S000 Tab B.2 ARW (+ chosen VRW, tau), as span_cpt",
+        100.0,
+        gyro_bias_instability_deg_h=1.0,
+        gyro_bias_tau_s=_TAU_TACTICAL_S,
+        gyro_arw_deg_sqrt_h=0.0667,
+        accel_bias_instability_mg=0.75,
+        accel_bias_tau_s=_TAU_TACTICAL_S,
+        accel_vrw_m_s_sqrt_h=0.1,
+    )
+
+
 def kvh1750() -> ImuGrade:
     """KVH 1750 (FOG gyros, MEMS accels; seed 002 ch5 Calgary drives), 200 Hz (S002).
 
@@ -374,6 +391,7 @@ IMU_GRADES = {
     "lsm6dsl": lsm6dsl,
     "crista": crista,
     "span_cpt": span_cpt,
+    "span_cpt_in_run": span_cpt_in_run,
     "kvh1750": kvh1750,
     "hg1700": hg1700,
     "pos310": pos310,

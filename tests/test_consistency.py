@@ -1,0 +1,144 @@
+"""Filter consistency over Monte-Carlo runs: NEES of the navigation states in the chi-square band.
+
+The simulator is set to the error models the filter assumes (the question is whether the filter's
+algebra, linearisation and tuning are consistent, not whether white-noise models fit correlated
+errors — that mismatch is measured in docs/models.md):
+- IMU: SPAN-CPT in-run errors only (GM biases + white noise, ``sensors.span_cpt_in_run``), which
+  INS15 models exactly;
+- GNSS: white code / phase / Doppler noise with the filter's zenith sigmas and elevation law; no
+  multipath, no product (orbit / clock) residuals (the filter's product sigma set to 0), no
+  ionosphere-model residual for SF (the filter's residual variance set to ~0), no ZWD residual.
+- The initial navigation error is drawn from the filter's initial covariance (a truth start with
+  P0 > 0 would make the early NEES small by construction).
+
+For each mode, N runs of a 5-minute drive: the run-averaged NEES at each epoch, averaged over
+the epochs, must lie inside the two-sided 95 % band of chi2(N n) / N (n = 3 position, 6
+position + velocity). Consecutive epochs are correlated, so the N-run band (not an N x T one) is
+the honest width for the time average.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+import jaxnav  # noqa: F401
+from jaxnav.filter import tight
+from jaxnav.gnss import models
+from jaxnav.sim import observations, scenario
+from jaxnav.study import metrics as mt
+from jaxnav.study.factory import SimFactory
+
+N_RUNS = 200
+CHUNK = 50
+DURATION_S = 300.0
+
+MATCHED_OBS = observations.ObsParams(
+    code_sigma0_m=(0.5, 0.5, 0.5),  # = PppConfig.code_sigma_m
+    phase_sigma0_m=0.003,  # = PppConfig.phase_sigma_m
+    doppler_sigma0_m_s=0.1,  # = PppConfig.doppler_sigma_m_s
+    multipath_code_sigma0_m=0.0,
+    multipath_phase_sigma0_m=0.0,
+    zwd_residual_sigma_m=0.0,
+    iono_residual_fraction=0.0,
+    orbit_sigma_m=0.0,
+    sat_clock_sigma_m=0.0,
+)
+
+
+def _matched_filter(factory: SimFactory, mode: str) -> tight.TightFilter:
+    tf = factory.filter(mode, "ins15")
+    cfg = dataclasses.replace(
+        tf.cfg,
+        product_sigma_m=0.0,
+        iono_model_residual_fraction=0.0,
+        iono_model_residual_floor_m=1e-3,
+    )
+    return eqx.tree_at(lambda t: t.cfg, tf, cfg)
+
+
+def _perturbed_carry(tf: tight.TightFilter, nav_true, obs0, key):
+    """Initial carry whose navigation error is a draw from the filter's own P0."""
+    carry = tight.initial_carry(tf, nav_true, obs0)
+    n_sys = tf.system.layout.size
+    n_nav = tight.nav_block_size(tf.layout)
+    L = jnp.linalg.cholesky(carry.P[:n_nav, :n_nav])
+    err = jnp.zeros(tf.layout.size).at[:n_nav].set(L @ jax.random.normal(key, (n_nav,)))
+    # feedback removes an error estimate dx (x <- x - dx): feeding -err adds err to the truth
+    nav, _ = tf.system.feedback(nav_true, carry.sensors, -err, tf.layout)
+    assert n_nav <= n_sys
+    return tight.initial_carry(tf, nav, obs0)
+
+
+@functools.cache
+def _factory() -> SimFactory:
+    factory = SimFactory({"duration_s": DURATION_S, "ins_grade": "span_cpt_in_run"})
+    factory.cfg = dataclasses.replace(factory.cfg, obs_params=MATCHED_OBS)
+    return factory
+
+
+@functools.cache
+def _realizations(single_frequency: bool):
+    """N_RUNS realisations (chunks of CHUNK, host memory) and initial-error keys; shared by the
+    modes with the same frequency plan."""
+    factory = _factory()
+    geo = factory.geo
+    cfg = dataclasses.replace(factory.cfg, imu_grade="span_cpt_in_run")
+    realize = jax.jit(jax.vmap(lambda k: scenario.realize(k, geo, cfg, single_frequency)))
+    keys = jax.random.split(jax.random.PRNGKey(2026), (N_RUNS, 2))
+    chunks = []
+    for i in range(0, N_RUNS, CHUNK):
+        real = realize(keys[i : i + CHUNK, 0])
+        chunks.append((jax.device_get((real.obs0, real.ins_inputs)), keys[i : i + CHUNK, 1]))
+    return chunks
+
+
+def _nees_runs(mode: str):
+    factory = _factory()
+    tf = _matched_filter(factory, mode)
+    geo = factory.geo
+    nav_true = scenario.initial_ins_state(geo)
+    t = geo.truth_ep
+    truth = mt.track(t.llh[1:], t.vel_enu[1:], t.euler[1:])
+
+    def one(obs0, inputs, k_init):
+        carry0 = _perturbed_carry(tf, nav_true, obs0, k_init)
+        _, out = tight.run(tf, carry0, inputs)
+        est = mt.track(out.llh, out.vel_enu, out.euler)
+        q_pos, q_pv = mt.nees(est, truth, out.P_nav)
+        return q_pos, q_pv, out.n_sat
+
+    batch = jax.jit(jax.vmap(one))
+    parts = [batch(obs0, inputs, k) for (obs0, inputs), k in _realizations(mode == "sf_code")]
+    q_pos, q_pv, n_sat = (np.concatenate([np.asarray(p[j]) for p in parts]) for j in range(3))
+    return q_pos, q_pv, n_sat
+
+
+def _band(n_dof: int, n_runs: int):
+    return chi2.ppf(0.025, n_runs * n_dof) / n_runs, chi2.ppf(0.975, n_runs * n_dof) / n_runs
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", models.MODES)
+def test_time_averaged_nees_in_chi2_band(mode):
+    q_pos, q_pv, n_sat = _nees_runs(mode)
+    assert np.all(np.isfinite(q_pos)) and np.all(np.isfinite(q_pv))
+    assert n_sat.mean() >= 4.0, "the drive must keep enough satellites for a meaningful test"
+    anees_pos = q_pos.mean(axis=0).mean()
+    anees_pv = q_pv.mean(axis=0).mean()
+    lo3, hi3 = _band(3, N_RUNS)
+    lo6, hi6 = _band(6, N_RUNS)
+    print(
+        f"\n{mode}: {N_RUNS} runs x {q_pos.shape[1]} epochs: ANEES position {anees_pos:.2f} "
+        f"(band {lo3:.2f}-{hi3:.2f}), position+velocity {anees_pv:.2f} "
+        f"(band {lo6:.2f}-{hi6:.2f}); mean satellites used {n_sat.mean():.1f}"
+    )
+    assert lo3 <= anees_pos <= hi3
+    assert lo6 <= anees_pv <= hi6

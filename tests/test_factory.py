@@ -1,0 +1,79 @@
+"""The simulated scenario factory: validation, grades per system, constellations, flights."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import jaxnav  # noqa: F401
+from jaxnav.filter.states import INS15
+from jaxnav.gnss import signals
+from jaxnav.sim import scenario, sensors
+from jaxnav.study import factory as fac
+from jaxnav.study.factory import SimFactory
+
+
+@pytest.mark.parametrize(
+    "table, words",
+    [
+        ({"colour": "red"}, ["unknown keys", "colour"]),
+        ({"constellations": ["beidou"]}, ["constellations", "beidou"]),
+        ({"constellations": ["galileo"]}, ["constellations", "gps"]),
+        ({"slots": [12, 14]}, ["slots", "three positive integers"]),
+        ({"drive_style": "rally"}, ["drive_style", "rally", "airborne"]),
+        ({"duration_s": "long"}, ["duration_s", "long", "float"]),
+        ({"bssd": "yes"}, ["bssd", "bool"]),
+        ({"ins_grade": "nope"}, ["nope", "does not exist"]),
+    ],
+)
+def test_invalid_scenario_tables_are_rejected_with_the_key(table, words):
+    with pytest.raises(ValueError) as err:
+        SimFactory(table)
+    for w in words:
+        assert w in str(err.value)
+
+
+def test_ins_systems_are_simulated_with_the_ins_grade():
+    """The standstill gyro bias seen by an INS system is the INS grade's (SPAN-CPT: 20 deg/h
+    turn-on), not the RISS MEMS's (IMU300CC: ~2 deg/s) — the bug that made ins15 diverge."""
+    f = SimFactory({"duration_s": 240.0})
+    real = fac._realize(f, 0, False, f.ins_grade)
+    head = jax.tree.map(lambda x: np.asarray(x[:30]).reshape(-1, 3), real.ins_inputs.samples)
+    nav0 = scenario.initial_ins_state(f.geo)
+    tf = f.filter("df_code", "ins15")
+    bias = np.asarray(tf.system.calibrate_static(nav0, head, tf.imu_dt_s).gyro_bias_rad_s)
+    ton = sensors.span_cpt().gyro_bias_turn_on_rad_s
+    mems = sensors.crossbow_imu300cc().gyro_bias_turn_on_rad_s
+    print(f"\nstandstill gyro bias {np.degrees(bias) * 3600} deg/h; SPAN-CPT turn-on sigma "
+          f"{np.degrees(ton) * 3600:.0f} deg/h, IMU300CC {np.degrees(mems) * 3600:.0f} deg/h")
+    assert np.all(np.abs(bias) < 5.0 * ton)
+    assert np.all(np.abs(bias) < 0.05 * mems)
+    # and the RISS keeps its MEMS
+    riss = fac._realize(f, 0, False, f.cfg.imu_grade).riss_inputs.samples
+    assert not np.allclose(np.asarray(riss.w_z[:30]), 0.0)
+
+
+def test_multi_gnss_slots_isb_states_and_bssd_reach_the_filter():
+    f = SimFactory(
+        {"duration_s": 240.0, "constellations": ["gps", "glonass", "galileo"],
+         "slots": [12, 14, 13], "bssd": True}
+    )
+    system = np.asarray(f.geo.slots.system)
+    assert [int(np.sum(system == s)) for s in range(3)] == [12, 14, 13]
+    tf = f.filter("float_ppp", "ins15")
+    assert tf.cfg.bssd and tf.cfg.systems == (signals.SYS_GPS, signals.SYS_GLO, signals.SYS_GAL)
+    assert tf.layout.has("isb_glo") and tf.layout.has("isb_gal")
+    assert tf.layout.size == INS15.size + 2 + 2 + 1 + 39  # clock, ISBs, ZWD, ambiguities
+    occupied = np.asarray(f.geo.slot_table.occupied)
+    assert occupied[system == signals.SYS_GLO].any() and occupied[system == signals.SYS_GAL].any()
+
+
+def test_airborne_flight_starts_moving_without_a_static_calibration():
+    f = SimFactory({"duration_s": 240.0, "drive_style": "airborne", "ins_grade": "hg1700"})
+    speed = np.hypot(*np.asarray(f.geo.truth_ep.vel_enu[0, :2]))
+    assert 40.0 < speed < 55.0  # S001 flight at 45-50 m/s from the first epoch
+    tf = f.filter("float_ppp", "ins15")
+    real = fac._realize(f, 0, False, f.ins_grade)
+    carry, _ = f.start(tf, "ins15", real)
+    assert np.all(np.asarray(carry.sensors.gyro_bias_rad_s) == 0.0)
