@@ -11,6 +11,12 @@ if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
         os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false"
     ).strip()
 
+# Single-threaded OpenBLAS: jaxlib's CPU Cholesky / triangular solves call scipy's OpenBLAS,
+# which splits each small per-scenario call over all cores. On a busy machine every call then
+# waits for the descheduled helper thread: measured 44-53 s vs 0.13-0.18 s for 16 scenarios x 40
+# epochs at load 15 (benchmarks/README.md). Must precede the first load of OpenBLAS.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import jax  # noqa: E402
 
 # GNSS ranges are ~2e7 m and cm-level work needs float64: enable it before any array is made.
