@@ -17,6 +17,29 @@ if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
 # epochs at load 15 (benchmarks/README.md). Must precede the first load of OpenBLAS.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+
+def _single_thread_loaded_openblas():
+    """If scipy (whose OpenBLAS jaxlib uses) was imported before jaxnav, the variable above
+    came too late: set the loaded library's thread count directly (at load 0 a test that
+    imported scipy first deadlocked with every thread parked)."""
+    import sys
+
+    if "scipy" not in sys.modules or os.environ["OPENBLAS_NUM_THREADS"] != "1":
+        return
+    import ctypes
+    import glob
+
+    libs = os.path.join(os.path.dirname(os.path.dirname(sys.modules["scipy"].__file__)),
+                        "scipy.libs", "libscipy_openblas*.so")
+    for path in glob.glob(libs):
+        try:
+            ctypes.CDLL(path).scipy_openblas_set_num_threads(1)
+        except (OSError, AttributeError):
+            pass
+
+
+_single_thread_loaded_openblas()
+
 import jax  # noqa: E402
 
 # GNSS ranges are ~2e7 m and cm-level work needs float64: enable it before any array is made.

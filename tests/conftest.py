@@ -1,5 +1,10 @@
 """Test-session set-up."""
 
+import os
+
+# Before any test module loads scipy's OpenBLAS (jaxlib's LAPACK): see jaxnav/__init__.py.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 FIRST = ("test_sweep.py",)
 
 
