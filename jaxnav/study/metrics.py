@@ -111,7 +111,25 @@ def _mpr(llh):
 
 
 def _solve(A, b):
-    return jnp.linalg.solve(A, b[..., None])[..., 0]
+    """A^-1 b for small SPD A [..., n, n] by an unrolled Cholesky (L L^T) in plain array ops.
+
+    Not jnp.linalg.solve: its LAPACK custom call, batched over scenarios x epochs, is where
+    XLA:CPU deadlocked intermittently on this machine (every thread parked on a futex).
+    """
+    n = A.shape[-1]
+    L = [[None] * n for _ in range(n)]
+    for j in range(n):
+        d = A[..., j, j] - sum(L[j][k] ** 2 for k in range(j))
+        L[j][j] = jnp.sqrt(d)
+        for i in range(j + 1, n):
+            L[i][j] = (A[..., i, j] - sum(L[i][k] * L[j][k] for k in range(j))) / L[j][j]
+    y = []
+    for i in range(n):  # L y = b
+        y.append((b[..., i] - sum(L[i][k] * y[k] for k in range(i))) / L[i][i])
+    x = [None] * n
+    for i in reversed(range(n)):  # L^T x = y
+        x[i] = (y[i] - sum(L[k][i] * x[k] for k in range(i + 1, n))) / L[i][i]
+    return jnp.stack(x, axis=-1)
 
 
 def nees(est: Track, true: Track, P_nav):
