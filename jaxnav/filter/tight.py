@@ -11,6 +11,12 @@ common median, so a clock jump or a drift after an outage is not mistaken for an
 chi-square gate on each innovation, and a normalised post-fit residual test: when the worst
 used row exceeds ``postfit_sigma``, that satellite (all its rows if it was a code row, as S002
 rejects the same satellite's phase and Doppler with its code) is removed and the update redone.
+
+Optional non-holonomic constraint (full-IMU ``InsSystem`` only; ``TightFilter.nhc_sigma_m_s``,
+off by default, and then the step is unchanged): after the GNSS update, a sequential update
+with the two NHC rows of ``filter.constraints.nhc_rows`` (lateral and vertical body velocity of
+the IMU = 0, S003 eq 8 / S002 eq 4.27-4.29 corrected), linearised at the same predicted state,
+prior mean the GNSS update's error estimate. Independent noise makes it the joint update.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxnav import geodesy
-from jaxnav.filter import ekf
+from jaxnav.filter import constraints, ekf
 from jaxnav.filter.states import StateLayout
 from jaxnav.filter.systems import NavSigmas
 from jaxnav.gnss import corrections, models, ppp
@@ -36,6 +42,8 @@ class TightFilter(eqx.Module):
     slots: ppp.SlotInfo
     imu_dt_s: float
     epoch_dt_s: float
+    # NHC noise [m/s] (S003: 1 m/s); None = no NHC (module docstring). InsSystem only.
+    nhc_sigma_m_s: float | None = eqx.field(static=True, default=None)
 
     @property
     def layout(self) -> StateLayout:
@@ -224,6 +232,21 @@ def _update_with_postfit(cfg: ppp.PppConfig, P, rows: ppp.Rows, mask):
     return jax.tree.map(lambda a, b: jnp.where(reject, b, a), first, second)
 
 
+def _nhc_update(tf: TightFilter, layout: StateLayout, nav, res: ekf.UpdateResult):
+    """Sequential NHC update (module docstring) of the GNSS update's (x, P); the GNSS
+    diagnostics (used rows, NIS, dof) are kept. The body rate at t_k is the last compensated
+    sample's (as in ``loose``); the IMU is taken to be at the vehicle's no-slip point."""
+    if not layout.has("att"):
+        raise ValueError("the tight NHC update needs a full-IMU system (attitude states)")
+    state, last = nav
+    w_now_b = last.dtheta_b / tf.imu_dt_s
+    rows = constraints.nhc_rows(
+        layout, state.llh, state.vel_enu, state.C_b_l, w_now_b, jnp.zeros(3), tf.nhc_sigma_m_s
+    )
+    upd = ekf.masked_update(res.x, res.P, rows.dz, rows.H, rows.R, rows.mask)
+    return res._replace(x=upd.x, P=upd.P)
+
+
 def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput):
     """One GNSS epoch: mechanize, propagate P, reset per-slot states, update, feed back."""
     layout = tf.layout
@@ -249,6 +272,8 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput):
     gnss_est, P, rows = _clock_jump(cfg, layout, gnss_est, P, rows)
     mask = _prefit_mask(cfg, rows)
     res = _update_with_postfit(cfg, P, rows, mask)
+    if tf.nhc_sigma_m_s is not None:
+        res = _nhc_update(tf, layout, nav, res)
 
     nav, sensors = tf.system.feedback(nav, carry.sensors, res.x, layout)
     gnss_est = gnss_est - jnp.where(jnp.arange(layout.size) >= tf.system.layout.size, res.x, 0.0)

@@ -19,7 +19,14 @@ its initial carry and the realisation's stacked inputs (``sweep.Problem``).
     drive_style = "airborne"  # also allowed: a seeded random flight (S001) instead of a drive
 
 Systems: ``riss`` (S000's 16-state RISS, 1 Hz inputs), ``riss9`` (S002's 9 + GNSS states),
-``ins15`` and ``ins21`` (full IMU at 100 Hz).
+``ins15`` and ``ins21`` (full IMU at 100 Hz), all tightly coupled (``ins15_nhc`` /
+``ins21_nhc``: with the tight filter's optional NHC update, sigma 1 m/s, S003); and the loosely
+coupled ``lc_ins15`` / ``lc_ins21`` (``filter.cascade``: a GNSS-only constant-velocity PPP
+filter of the same mode whose position / velocity fix, valid with >= 4 satellites used, aids a
+15 / 21-state INS). A ``_nhc`` suffix (``lc_ins15_nhc``, ``lc_ins21_nhc``) adds the
+non-holonomic constraint (lateral and vertical body velocity 0, sigma 1 m/s, S003) to the LC
+filter at every epoch. The engine asks ``ops_for(mode, system)`` for the filter contract
+(``cascade_ops`` for ``lc_*``).
 """
 
 from __future__ import annotations
@@ -32,14 +39,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.filter import loose, systems, tight
+from jaxnav.filter import cascade, loose, systems, tight
 from jaxnav.filter.states import INS15, INS21, RISS9, RISS16
 from jaxnav.gnss import models, ppp, signals
 from jaxnav.sim import constellation, observations, scenario, sensors
 from jaxnav.study import metrics
-from jaxnav.study.sweep import Problem, Timeline
+from jaxnav.study.sweep import Problem, Timeline, tight_ops
 
-SYSTEMS = ("riss", "riss9", "ins15", "ins21")
+#: Loosely coupled systems (``filter.cascade``): INS layout and whether NHC rows are used.
+LC_SYSTEMS = {
+    "lc_ins15": (INS15, False),
+    "lc_ins21": (INS21, False),
+    "lc_ins15_nhc": (INS15, True),
+    "lc_ins21_nhc": (INS21, True),
+}
+#: Tightly coupled full-IMU systems with the NHC update (``TightFilter.nhc_sigma_m_s``).
+TC_NHC_SYSTEMS = ("ins15_nhc", "ins21_nhc")
+NHC_SIGMA_M_S = 1.0  # S003: NHC noise 1 m/s (a 2-3 deg misalignment at 18-20 m/s)
+SYSTEMS = ("riss", "riss9", "ins15", "ins21", *LC_SYSTEMS, *TC_NHC_SYSTEMS)
 _SCENARIO_KEYS = {
     "drive_seed": int,
     "drive_style": str,
@@ -133,6 +150,10 @@ class SimFactory:
         n = int(self.geo.truth_ep.time_s.shape[0]) - 1
         return Timeline(n, self.cfg.epoch_interval_s, np.asarray(self.geo.truth_ep.event[1:]))
 
+    def ops_for(self, mode: str, system_name: str):
+        """The sweep engine's ``FilterOps`` for a (mode, system) group."""
+        return cascade.cascade_ops() if system_name in LC_SYSTEMS else tight_ops()
+
     def _system(self, name: str):
         cfg = self.cfg
         if name.startswith("riss"):
@@ -144,11 +165,14 @@ class SimFactory:
                 cfg.epoch_interval_s,
                 layout=RISS16 if name == "riss" else RISS9,
             )
-        layout = INS15 if name == "ins15" else INS21
+        if name in LC_SYSTEMS:
+            layout = LC_SYSTEMS[name][0]
+        else:
+            layout = INS15 if name.startswith("ins15") else INS21
         model = loose.imu_error_model(getattr(sensors, self.ins_grade)())
         return systems.InsSystem(layout, model, jnp.asarray(cfg.lever_b_m, jnp.float64))
 
-    def filter(self, mode: str, system_name: str) -> tight.TightFilter:
+    def filter(self, mode: str, system_name: str) -> tight.TightFilter | cascade.CascadeFilter:
         cfg, geo = self.cfg, self.geo
         system = self._system(system_name)
         rate = cfg.riss_rate_hz if system_name.startswith("riss") else cfg.imu_rate_hz
@@ -159,10 +183,20 @@ class SimFactory:
             estimate_zwd=mode in models.PHASE_MODES,
             bssd=self.bssd,
         )
-        return tight.TightFilter(system, pcfg, geo.slots, 1.0 / rate, cfg.epoch_interval_s)
+        if system_name in LC_SYSTEMS:
+            lcfg = loose.LooseConfig(
+                use_nhc=LC_SYSTEMS[system_name][1], nhc_sigma_m_s=NHC_SIGMA_M_S
+            )
+            lf = loose.LooseFilter(system, lcfg, 1.0 / rate, cfg.epoch_interval_s)
+            return cascade.make_filter(pcfg, geo.slots, lf)
+        nhc = NHC_SIGMA_M_S if system_name in TC_NHC_SYSTEMS else None
+        return tight.TightFilter(
+            system, pcfg, geo.slots, 1.0 / rate, cfg.epoch_interval_s, nhc_sigma_m_s=nhc
+        )
 
-    def start(self, tf: tight.TightFilter, system_name: str, real: scenario.Realization):
-        """Initial carry: truth-initialised navigation state, standstill sensor calibration."""
+    def start(self, tf, system_name: str, real: scenario.Realization):
+        """Initial carry: truth-initialised navigation state, standstill sensor calibration
+        (LC systems: the PPP filter starts at the true antenna position and velocity)."""
         geo = self.geo
         if system_name.startswith("riss"):
             nav0, inputs = scenario.initial_riss_state(geo), real.riss_inputs
@@ -175,7 +209,11 @@ class SimFactory:
                 lambda x: x[:_STATIC_CALIBRATION_EPOCHS].reshape(-1, *x.shape[2:]),
                 inputs.samples,
             )
-            sens0 = tf.system.calibrate_static(nav0, head, tf.imu_dt_s)
+            ins = tf.lc if system_name in LC_SYSTEMS else tf
+            sens0 = ins.system.calibrate_static(nav0, head, ins.imu_dt_s)
+        if system_name in LC_SYSTEMS:
+            carry0 = cascade.initial_carry(tf, nav0, real.obs0, sensors0=sens0)
+            return carry0, cascade.epoch_inputs(inputs)
         return tight.initial_carry(tf, nav0, real.obs0, sensors0=sens0), inputs
 
     def build(self, study_cfg, mode: str, system_name: str, seed: int) -> Problem:
@@ -187,7 +225,8 @@ class SimFactory:
         t = geo.truth_ep
         truth = metrics.track(t.llh[1:], t.vel_enu[1:], t.euler[1:])
         el, az = self._sky
-        return Problem(tf, carry0, inputs, truth, el, inputs.obs.available, az)
+        obs = inputs.gnss.obs if system_name in LC_SYSTEMS else inputs.obs
+        return Problem(tf, carry0, inputs, truth, el, obs.available, az)
 
 
 def _realize(factory: SimFactory, seed: int, single_frequency: bool, imu_grade: str):

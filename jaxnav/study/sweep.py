@@ -798,13 +798,15 @@ def run_sweep(
     """Run (or resume) a sweep into ``out_dir`` and return its Dataset (module docstring).
 
     ``factory``: ``timeline(cfg) -> Timeline``, ``build(cfg, mode, system, seed) -> Problem``,
-    optional ``ops`` (FilterOps, default ``tight_ops()``), ``modes`` / ``systems`` (allowed
+    optional ``ops_for(mode, system)`` (FilterOps per group) or ``ops`` (one FilterOps for
+    every group; default ``tight_ops()``), ``modes`` / ``systems`` (allowed
     labels) and ``fingerprint()`` (hashed with the config so resumed chunks match the code's
     scenario). ``on_chunk(group, chunk)`` is called after each chunk is persisted.
     """
     t_wall = time.perf_counter()
     validate(cfg, modes=getattr(factory, "modes", None), systems=getattr(factory, "systems", None))
     ops = getattr(factory, "ops", None) or tight_ops()
+    ops_for = getattr(factory, "ops_for", None)  # per (mode, system) when the factory varies it
     fingerprint = factory.fingerprint() if hasattr(factory, "fingerprint") else ""
     timeline = factory.timeline(cfg)
     plan = make_plan(cfg, timeline)
@@ -846,7 +848,8 @@ def run_sweep(
             if not todo:
                 continue
             bar.set_postfix_str(f"{mode}/{system}")
-            runner = _GroupRunner(plan, factory, ops, mode, system, mesh, stats)
+            g_ops = ops_for(mode, system) if ops_for is not None else ops
+            runner = _GroupRunner(plan, factory, g_ops, mode, system, mesh, stats)
             for j in todo:
                 out = runner.chunk(j)
                 store.write_chunk(g, j, out)

@@ -1,0 +1,33 @@
+"""experiments/seed003_lc_vs_tc.py --quick runs end to end and writes its report and figures."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+EXP = Path(__file__).resolve().parents[1] / "experiments"
+
+
+def test_seed003_quick_writes_report(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, str(EXP / "seed003_lc_vs_tc.py"), "--quick", "--out", str(tmp_path)],
+        cwd=EXP, capture_output=True, text=True, timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = (tmp_path / "report.md").read_text()
+    for heading in ("Seed figures", "Seed vs ours", "NHC gain", "Discussion"):
+        assert f"## {heading}" in report
+    assert (tmp_path / "attitude_errors.png").stat().st_size > 0
+    assert (tmp_path / "attitude_rms.png").stat().st_size > 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    rms = summary["rms"]
+    assert set(rms) == {"PPP", "TC", "TC+NHC", "LC", "LC+NHC"}
+    # Full availability: every LC epoch has a valid PPP fix, and the solutions are sane
+    # (metre-level DF-code positions, azimuth within a few degrees, NHC not harmful).
+    assert min(summary["lc_fix_valid_fraction"].values()) == 1.0
+    for lab in ("TC", "TC+NHC", "LC", "LC+NHC"):
+        assert rms[lab]["lat_m"] < 5.0 and rms[lab]["az_deg"] < 20.0
+    assert rms["LC+NHC"]["az_deg"] < rms["LC"]["az_deg"]
+    assert rms["TC+NHC"]["az_deg"] < rms["TC"]["az_deg"]
