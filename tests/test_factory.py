@@ -64,7 +64,9 @@ def test_multi_gnss_slots_isb_states_and_bssd_reach_the_filter():
     tf = f.filter("float_ppp", "ins15")
     assert tf.cfg.bssd and tf.cfg.systems == (signals.SYS_GPS, signals.SYS_GLO, signals.SYS_GAL)
     assert tf.layout.has("isb_glo") and tf.layout.has("isb_gal")
-    assert tf.layout.size == INS15.size + 2 + 2 + 1 + 39  # clock, ISBs, ZWD, ambiguities
+    # BSSD differences the receiver clock out: no clock states; ISBs, ZWD, ambiguities stay
+    assert not tf.layout.has("clock_bias")
+    assert tf.layout.size == INS15.size + 2 + 1 + 39
     occupied = np.asarray(f.geo.slot_table.occupied)
     assert occupied[system == signals.SYS_GLO].any() and occupied[system == signals.SYS_GAL].any()
 
