@@ -65,37 +65,6 @@ def settings(quick: bool) -> dict:
     return {"duration_s": 1800.0, "exclude_s": 600.0, "seeds": list(range(6)), "mode": MODE}
 
 
-class CalibratedFactory(SimFactory):
-    """``SimFactory`` whose INS filters start with a gyro-bias variance that reflects the
-    standstill calibration they get.
-
-    ``SimFactory.start`` calibrates the gyro biases on the 60-s standstill but keeps the
-    uncalibrated prior (turn-on + in-run, ``ins.errors.sensor_initial_std``): for the Crista
-    that is sigma = 1.5 deg/s, with which the heading error variance grows to tens of degrees
-    during the standstill (heading unobservable at rest) and the linearised filter then learns
-    a wrong vertical gyro bias (measured: -4.3 deg/s against a calibrated -1.9 deg/s within the
-    60 s, both TC and LC), after which the TC filter can lose lock. After the calibration the
-    turn-on bias is known to ARW / sqrt(30 s); what is left is the in-run GM part. This start is
-    used for every INS solution here (TC and LC alike).
-    """
-
-    def start(self, tf, system_name, real):
-        carry0, inputs = super().start(tf, system_name, real)
-        lc = system_name.startswith("lc_")
-        ins = tf.lc if lc else tf
-        model = ins.system.model
-        sd = jnp.hypot(
-            jnp.broadcast_to(model.gyro_bias_sigma_rad_s, (3,)),
-            jnp.broadcast_to(model.gyro_arw_rad_sqrt_s, (3,)) / jnp.sqrt(30.0),
-        )
-        sl = ins.layout.sl("gyro_bias")
-        P = (carry0.lc if lc else carry0).P
-        P = P.at[sl, :].set(0.0).at[:, sl].set(0.0).at[sl, sl].set(jnp.diag(sd**2))
-        if lc:
-            return carry0._replace(lc=carry0.lc._replace(P=P)), inputs
-        return carry0._replace(P=P), inputs
-
-
 def _errors(llh, vel, euler, t_llh, t_vel, t_euler):
     """[T, 9] errors: north, east, up [m]; vE, vN, vU [m/s]; pitch, roll, azimuth [deg]."""
     enu = metrics.enu_errors(llh, t_llh)
@@ -214,7 +183,7 @@ def main(argv=None) -> int:
     t_start = time.perf_counter()
     scenario = {"duration_s": st["duration_s"], "drive_style": "suburban", "ins_grade": "crista",
                 "drive_seed": 3}
-    factory = CalibratedFactory(scenario)
+    factory = SimFactory(scenario)
     mode = st["mode"]
     truth = make_truth(factory)
     dt = factory.cfg.epoch_interval_s
@@ -290,13 +259,15 @@ def main(argv=None) -> int:
         ("Set-up", f"""
 Simulated {st['duration_s'] / 60:.0f}-min `suburban` drive (drive seed 3; residential-area
 speeds, starting with a 60-s standstill used for the gyro-bias calibration of every INS
-solution, after which the gyro-bias prior is the in-run GM sigma: `CalibratedFactory`, see
-"Discussion"), GPS only, `{mode}` (IF code + carrier + Doppler at 1 Hz, S003 eq 1/6), IMU preset
-`crista` at 100 Hz, lever arm 1.5 m up. {n_real} noise realisations (IMU errors, GNSS noise,
-multipath, ionosphere/troposphere residuals) shared by all solutions. Statistics: RMS over the
-last {(st['duration_s'] - st['exclude_s']) / 60:.0f} min (the first
+solution, after which the gyro-bias prior is the in-run GM sigma (+) ARW / sqrt(30 s),
+`SimFactory.start`; see "Discussion"), GPS only, `{mode}` (IF code + carrier + Doppler at
+1 Hz, S003 eq 1/6), IMU preset `crista` at 100 Hz, lever arm 1.5 m up. {n_real} noise
+realisations (IMU errors, GNSS noise, multipath, ionosphere/troposphere residuals) shared by
+all solutions. Statistics: RMS over the last
+{(st['duration_s'] - st['exclude_s']) / 60:.0f} min (the first
 {st['exclude_s'] / 60:.0f} min are the PPP convergence; S003 instead processed its PPP
-backward), pooled over realisations; "±" is the standard deviation of the per-realisation RMS.
+backward), pooled over realisations; "±" is the standard deviation of the per-realisation
+RMS.
 
 Solutions: **PPP** = the GNSS-only constant-velocity PPP filter inside the LC cascade (scored at
 the antenna); **TC** = `ins15` (tight 15-state INS), **TC+NHC** = `ins15_nhc` (the tight
@@ -378,15 +349,14 @@ def discussion(ours, gain, valid_frac) -> str:
         "the azimuth observability comes from horizontal accelerations)."
     )
     lines.append(
-        "- **Start-up (a finding about `SimFactory`, not a seed figure).** With the factory's "
-        "own start (gyro biases calibrated on the standstill, but the prior variance left at "
-        "the uncalibrated turn-on + in-run sigma, 1.5 deg/s for the Crista) both filters "
-        "'learn' a wrong vertical gyro bias while the heading is unobservable at rest (-4.3 "
+        "- **Start-up (a finding that changed `SimFactory`, not a seed figure).** With the "
+        "gyro biases calibrated on the standstill but the prior variance left at the "
+        "uncalibrated turn-on + in-run sigma (1.5 deg/s for the Crista) both filters "
+        "'learned' a wrong vertical gyro bias while the heading is unobservable at rest (-4.3 "
         "deg/s against the calibrated -1.9 deg/s in one realisation), and the TC filter then "
-        "lost lock in one of two quick-run realisations (horizontal errors of hundreds of "
-        "metres, its innovation gates rejecting the satellites) while the LC filter, which has "
-        "no gates, recovered to 12 deg azimuth RMS. This script therefore starts every INS "
-        "with the calibrated gyro-bias prior (the in-run GM sigma)."
+        "lost lock in one of two quick-run realisations while the LC filter, which has no "
+        "gates, recovered to 12 deg azimuth RMS. `SimFactory.start` now starts every INS with "
+        "the prior the calibration earns (`NavSigmas.gyro_calibration_s`)."
     )
     lines.append(
         f"- LC fixes were valid at {min(valid_frac.values()) * 100:.1f} % of the epochs or more "

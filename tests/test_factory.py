@@ -79,3 +79,22 @@ def test_airborne_flight_starts_moving_without_a_static_calibration():
     real = fac._realize(f, 0, False, f.ins_grade)
     carry, _ = f.start(tf, "ins15", real)
     assert np.all(np.asarray(carry.sensors.gyro_bias_rad_s) == 0.0)
+
+
+def test_standstill_calibration_sets_the_gyro_bias_prior_it_earns():
+    """After the 30-s standstill calibration the gyro-bias sigma is in-run (+) ARW/sqrt(30 s),
+    not the turn-on sigma: with the uncalibrated prior a Crista filter learned a wrong bias at
+    rest (-4.3 vs -1.9 deg/s) and its azimuth drifted to -150 deg within a minute (seed 003)."""
+    f = SimFactory({"duration_s": 240.0, "ins_grade": "crista"})
+    tf = f.filter("df_code", "ins15")
+    carry, _ = f.start(tf, "ins15", fac._realize(f, 0, False, f.ins_grade))
+    sd = np.sqrt(np.diag(np.asarray(carry.P))[INS15.sl("gyro_bias")])
+    model = tf.system.model
+    expect = np.hypot(model.gyro_bias_sigma_rad_s, model.gyro_arw_rad_sqrt_s / np.sqrt(30.0))
+    np.testing.assert_allclose(sd, expect, rtol=1e-12)
+    assert np.all(sd < 0.2 * float(model.gyro_bias_ton_sigma_rad_s))
+    # the LC cascade's INS starts the same way
+    lc = f.filter("df_code", "lc_ins15")
+    carry_lc, _ = f.start(lc, "lc_ins15", fac._realize(f, 0, False, f.ins_grade))
+    sd_lc = np.sqrt(np.diag(np.asarray(carry_lc.lc.P))[INS15.sl("gyro_bias")])
+    np.testing.assert_allclose(sd_lc, expect, rtol=1e-12)

@@ -32,6 +32,11 @@ class NavSigmas(eqx.Module):
     roll_pitch_rad: float = 0.01  # ~0.6 deg from levelling
     azimuth_rad: float = 0.05  # ~3 deg from GNSS course over ground
     odo_speed_m_s: float = 0.3  # odometer scale error ~1 % of a 30 m/s top speed
+    #: Length [s] of a standstill gyro calibration behind ``sensors0`` (None: none). Full-IMU
+    #: systems then start the gyro bias at in-run sigma (+) ARW / sqrt(T) instead of turn-on:
+    #: the uncalibrated prior lets a MEMS filter learn a wrong bias while heading is unobservable
+    #: at rest. (The RISS model's gyro-bias sigma is the in-run one already.)
+    gyro_calibration_s: float | None = None
 
 
 def _pos_std_llh(llh, sigma_m):
@@ -274,7 +279,7 @@ class InsSystem(eqx.Module):
 
     def initial_std(self, nav, sig: NavSigmas):
         state, _ = nav
-        std = ins_errors.sensor_initial_std(self.layout, self.model)
+        std = ins_errors.sensor_initial_std(self.layout, self.model, sig.gyro_calibration_s)
         std = std.at[self.layout.sl("pos")].set(_pos_std_llh(state.llh, sig.pos_m))
         std = std.at[self.layout.sl("vel")].set(sig.vel_m_s)
         att = jnp.stack([sig.roll_pitch_rad, sig.roll_pitch_rad, sig.azimuth_rad])

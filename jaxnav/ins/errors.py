@@ -200,17 +200,23 @@ def error_dynamics(layout: StateLayout, llh, vel_enu, C_b_l, f_b, w_ib_b, model:
     return F, G, jnp.diag(qc)
 
 
-def sensor_initial_std(layout: StateLayout, model: ImuErrorModel):
+def sensor_initial_std(layout: StateLayout, model: ImuErrorModel,
+                       gyro_calibration_s: float | None = None):
     """Initial standard deviations of the sensor blocks (zeros for every other block).
 
     GM blocks start at their steady-state sigma; turn-on blocks at their turn-on sigma. In a
     layout without turn-on blocks (INS15, INS21) the single bias block also carries the turn-on
-    bias, so its sigma is sqrt(sigma_drift^2 + sigma_ton^2).
+    bias, so its sigma is sqrt(sigma_drift^2 + sigma_ton^2). After a standstill gyro
+    calibration of ``gyro_calibration_s`` seconds the turn-on part is known to
+    ARW / sqrt(T) instead (the mean of T seconds of white rate noise).
     """
     std = jnp.zeros(layout.size, jnp.float64)
+    gyro_ton = _triad(model.gyro_bias_ton_sigma_rad_s)
+    if gyro_calibration_s is not None:
+        gyro_ton = _triad(model.gyro_arw_rad_sqrt_s) / jnp.sqrt(gyro_calibration_s)
     ton = {
         "accel_bias": _triad(model.accel_bias_ton_sigma_m_s2),
-        "gyro_bias": _triad(model.gyro_bias_ton_sigma_rad_s),
+        "gyro_bias": gyro_ton,
     }
     for name in _GM_BLOCKS:
         if layout.has(name):

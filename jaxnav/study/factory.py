@@ -196,12 +196,14 @@ class SimFactory:
 
     def start(self, tf, system_name: str, real: scenario.Realization):
         """Initial carry: truth-initialised navigation state, standstill sensor calibration
-        (LC systems: the PPP filter starts at the true antenna position and velocity)."""
+        with the gyro-bias prior it earns (``NavSigmas.gyro_calibration_s``; LC systems: the
+        PPP filter starts at the true antenna position and velocity)."""
         geo = self.geo
         if system_name.startswith("riss"):
             nav0, inputs = scenario.initial_riss_state(geo), real.riss_inputs
         else:
             nav0, inputs = scenario.initial_ins_state(geo), real.ins_inputs
+        sigmas = systems.NavSigmas()
         if self.cfg.drive_style == "airborne":  # a flight starts moving: nothing to calibrate
             sens0 = None
         else:
@@ -211,10 +213,12 @@ class SimFactory:
             )
             ins = tf.lc if system_name in LC_SYSTEMS else tf
             sens0 = ins.system.calibrate_static(nav0, head, ins.imu_dt_s)
+            calib_s = _STATIC_CALIBRATION_EPOCHS * self.cfg.epoch_interval_s
+            sigmas = systems.NavSigmas(gyro_calibration_s=calib_s)
         if system_name in LC_SYSTEMS:
-            carry0 = cascade.initial_carry(tf, nav0, real.obs0, sensors0=sens0)
+            carry0 = cascade.initial_carry(tf, nav0, real.obs0, sigmas, sensors0=sens0)
             return carry0, cascade.epoch_inputs(inputs)
-        return tight.initial_carry(tf, nav0, real.obs0, sensors0=sens0), inputs
+        return tight.initial_carry(tf, nav0, real.obs0, sigmas, sensors0=sens0), inputs
 
     def build(self, study_cfg, mode: str, system_name: str, seed: int) -> Problem:
         geo = self.geo
