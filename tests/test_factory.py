@@ -25,6 +25,7 @@ from jaxnav.study.factory import SimFactory
         ({"duration_s": "long"}, ["duration_s", "long", "float"]),
         ({"bssd": "yes"}, ["bssd", "bool"]),
         ({"ins_grade": "nope"}, ["nope", "does not exist"]),
+        ({"iono_model": "nequick"}, ["iono_model", "nequick", "gim"]),
     ],
 )
 def test_invalid_scenario_tables_are_rejected_with_the_key(table, words):

@@ -320,6 +320,19 @@ def test_single_frequency_user_sees_the_klobuchar_residual(base):
     assert np.all(truth >= 0.0)
 
 
+def test_gim_grade_model_error_is_the_set_fraction_of_the_klobuchar_residual(scenario, base):
+    """gim_error_fraction f: I_GIM - I = f (I_Klob - I) in the same realisation (the truth and
+    the noise are untouched)."""
+    gim = _sim(scenario, O.DEFAULT_PARAMS._replace(gim_error_fraction=0.25))
+    valid = np.asarray(base.valid)
+    truth = np.asarray(base.truth.iono_l1_m)[valid]
+    np.testing.assert_allclose(np.asarray(gim.truth.iono_l1_m)[valid], truth)
+    err_klob = np.asarray(base.iono_model_l1_m)[valid] - truth
+    err_gim = np.asarray(gim.iono_model_l1_m)[valid] - truth
+    np.testing.assert_allclose(err_gim, 0.25 * err_klob, atol=1e-9)
+    assert np.sqrt(np.mean(err_klob**2)) > 0.3  # a metre-level broadcast error to shrink
+
+
 def test_cycle_slips_and_loss_of_lock(scenario):
     p = O.DEFAULT_PARAMS._replace(slip_prob=0.01, loss_of_lock_prob=0.002, loss_of_lock_epochs=5)
     obs = _sim(scenario, p)

@@ -78,7 +78,7 @@ def test_rows_match_autodiff(mode, bssd):
     for name, system, nav, mean in _systems():
         cfg = ppp.PppConfig(
             mode=mode, n_slots=S, systems=(signals.SYS_GPS, signals.SYS_GAL), bssd=bssd,
-            elevation_mask_rad=0.0,
+            elevation_mask_rad=0.0, iono_constraint="epoch",  # epoch: check the GIM rows too
         )
         tf = tight.TightFilter(system, cfg, slots, 0.01, 1.0)
         layout = tf.layout
@@ -122,3 +122,39 @@ def test_rows_match_autodiff(mode, bssd):
         worst = zip(layout.labels(), err.max(axis=0), strict=True)
         bad = {label: float(e) for label, e in worst if e > 2e-3}
         assert not bad, (name, mode, bssd, bad)
+
+
+def test_ic_ppp_gim_is_a_reset_prior_by_default_and_a_row_per_epoch_on_request():
+    """iono_constraint="prior": no ionosphere pseudo-observation rows; a restarted slot's slant
+    ionosphere starts at the model value with the model's variance. "epoch" (S001 eq 6 as
+    printed): one GIM row per usable slot."""
+    obs, slots = _sky()
+    _, system, nav, mean = _systems()[1]
+    keep = jnp.ones(S, bool)
+    hatch = ppp.HatchState.empty(S)
+    kinds = {}
+    for cons in ("prior", "epoch"):
+        cfg = ppp.PppConfig(mode="ic_ppp", n_slots=S, systems=(signals.SYS_GPS, signals.SYS_GAL),
+                            elevation_mask_rad=0.0, iono_constraint=cons)
+        tf = tight.TightFilter(system, cfg, slots, 0.01, 1.0)
+        rx = system.antenna(nav, mean, system.zero_sensors(), tf.layout)
+        rows, el = ppp.measurement_rows(cfg, tf.layout, slots, obs, rx, jnp.zeros(tf.layout.size),
+                                        keep, hatch, 180.0)
+        kinds[cons] = int(np.sum(np.asarray(rows.kind == ppp.KIND_IONO) & np.asarray(rows.mask)))
+        restart = jnp.asarray(np.arange(S) % 2 == 0)
+        P0 = jnp.eye(tf.layout.size) * 1e4
+        est, P = tight._reset_slots(tf, tf.layout, jnp.zeros(tf.layout.size), P0, obs, restart,
+                                    el)
+        sl = tf.layout.sl("iono")
+        var = np.diag(np.asarray(P))[sl]
+        np.testing.assert_allclose(np.asarray(est[sl])[::2], np.asarray(obs.iono_model_l1_m)[::2])
+        np.testing.assert_allclose(var[1::2], 1e4)  # not restarted: untouched
+        if cons == "prior":
+            expect = np.asarray(ppp.iono_model_var(cfg, obs.iono_model_l1_m, el))
+            np.testing.assert_allclose(var[::2], expect[::2])
+            assert np.all(var[::2] < cfg.iono_init_sigma_m**2)
+        else:
+            np.testing.assert_allclose(var[::2], cfg.iono_init_sigma_m**2)
+    assert kinds["prior"] == 0 and kinds["epoch"] == int(np.sum(np.asarray(obs.available)))
+    with pytest.raises(ValueError, match="iono_constraint"):
+        ppp.PppConfig(mode="ic_ppp", iono_constraint="sometimes")

@@ -160,10 +160,14 @@ def _slot_usable(tf: TightFilter, rx: ppp.Receiver, obs: ppp.GnssObs, keep):
     return obs.available & keep & (el >= tf.cfg.elevation_mask_rad), el
 
 
-def _reset_slots(tf: TightFilter, layout, gnss_est, P, obs: ppp.GnssObs, restart):
-    """Re-initialise per-slot ambiguity / ionosphere states of restarted slots from the code."""
+def _reset_slots(tf: TightFilter, layout, gnss_est, P, obs: ppp.GnssObs, restart, el):
+    """Re-initialise per-slot ambiguity / ionosphere states of restarted slots from the code
+    (IC-PPP: the slant ionosphere from the model, ``PppConfig.iono_constraint``)."""
     cfg = tf.cfg
-    flags, var = ppp.slot_state_resets(cfg, layout, restart)
+    iono_var = None
+    if cfg.mode == "ic_ppp" and cfg.iono_constraint == "prior":
+        iono_var = ppp.iono_model_var(cfg, obs.iono_model_l1_m, el)
+    flags, var = ppp.slot_state_resets(cfg, layout, restart, iono_var)
     _, P = ekf.reset_states(jnp.zeros(layout.size), P, flags, var)
     cmb = ppp.combos(tf.slots, obs)
     if layout.has("amb"):
@@ -261,7 +265,7 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput):
     rx = tf.system.antenna(nav, mean_inputs, carry.sensors, layout)
     usable, el = _slot_usable(tf, rx, inp.obs, inp.keep)
     restart = usable & (~carry.tracked | inp.obs.slip)
-    gnss_est, P = _reset_slots(tf, layout, gnss_est, P, inp.obs, restart)
+    gnss_est, P = _reset_slots(tf, layout, gnss_est, P, inp.obs, restart, el)
     hatch = carry.hatch
     if cfg.mode == "sdf_code":
         hatch = ppp.hatch_update(cfg, hatch, ppp.combos(tf.slots, inp.obs), usable, restart)

@@ -102,6 +102,13 @@ class PppConfig(eqx.Module):
     zwd_init_sigma_m: float = 0.1
     ambiguity_init_sigma_m: float = 10.0
     iono_init_sigma_m: float = 3.0
+    # How IC-PPP uses the ionosphere model (S001 eqs 6-7): "prior" = the model value and its
+    # sigma (``iono_model_var``) initialise each slant-ionosphere state when its slot (re)starts;
+    # "epoch" = S001 as printed, a white pseudo-observation at every epoch. Chosen default
+    # "prior": the model error is correlated over tens of minutes, so re-applying it each epoch
+    # as independent pins the state to the model's bias (measured, airborne IC-PPP/INS: 1.4 m
+    # 2D error after 20 min with "epoch" vs 0.1 m for IF-PPP/INS).
+    iono_constraint: str = eqx.field(static=True, default="prior")
     dcb_init_sigma_m: float = 10.0
 
     def __check_init__(self):
@@ -109,6 +116,10 @@ class PppConfig(eqx.Module):
             raise ValueError(f"unknown PPP mode {self.mode!r}; expected one of {models.MODES}")
         if self.mode == "ic_ppp" and self.bssd:
             raise ValueError("ic_ppp with between-satellite differences is not supported")
+        if self.iono_constraint not in ("prior", "epoch"):
+            raise ValueError(
+                f"iono_constraint = {self.iono_constraint!r}: expected 'prior' or 'epoch'"
+            )
 
     @property
     def uses_phase(self) -> bool:
@@ -191,10 +202,19 @@ def gnss_initial_std(cfg: PppConfig, layout: StateLayout):
 _PER_SLOT_BLOCKS = ("amb", "amb1", "amb2", "iono")
 
 
-def slot_state_resets(cfg: PppConfig, layout: StateLayout, reset_slot):
+def iono_model_var(cfg: PppConfig, iono_model_l1_m, elevation_rad):
+    """Variance [m^2] of the model (broadcast / GIM) slant L1 ionosphere:
+    (fraction * I_model)^2 + (floor * s(E))^2, s(E) the S001 eq 11 elevation factor."""
+    floor = models.elevation_sigma(cfg.iono_model_residual_floor_m, elevation_rad)
+    return (cfg.iono_model_residual_fraction * iono_model_l1_m) ** 2 + floor**2
+
+
+def slot_state_resets(cfg: PppConfig, layout: StateLayout, reset_slot, iono_var=None):
     """Per-state reset flags and variances for slots that rose, slipped or returned ([S] bool).
 
-    The variances are the initial ones of ``gnss_initial_std`` on the per-slot blocks.
+    The variances are the initial ones of ``gnss_initial_std`` on the per-slot blocks; with
+    ``iono_var`` [S] (IC-PPP, ``iono_constraint = "prior"``) the slant ionosphere restarts at
+    the model's variance instead.
     """
     flags = jnp.zeros(layout.size, bool)
     in_block = jnp.zeros(layout.size, bool)
@@ -203,6 +223,8 @@ def slot_state_resets(cfg: PppConfig, layout: StateLayout, reset_slot):
             flags = flags.at[layout.sl(name)].set(reset_slot)
             in_block = in_block.at[layout.sl(name)].set(True)
     var = jnp.where(in_block, gnss_initial_std(cfg, layout) ** 2, 0.0)
+    if iono_var is not None and layout.has("iono"):
+        var = var.at[layout.sl("iono")].set(iono_var)
     return flags, var
 
 
@@ -375,9 +397,7 @@ def measurement_rows(
     geo_pred = geo.range_m + rx_clock + trop
 
     blocks = []  # (dz, H, var, mask, kind)
-    iono_var = (cfg.iono_model_residual_fraction * obs.iono_model_l1_m) ** 2 + (
-        models.elevation_sigma(cfg.iono_model_residual_floor_m, el)
-    ) ** 2
+    iono_var = iono_model_var(cfg, obs.iono_model_l1_m, el)
     prod = cfg.product_sigma_m**2  # not amplified by the IF combination: added after it
     if cfg.mode == "sf_code":
         z = cmb.code_corr_m[:, 0] - obs.iono_model_l1_m
@@ -429,7 +449,7 @@ def measurement_rows(
     else:
         diffed = [(dz, H, jnp.diag(var), mask, kind) for dz, H, var, mask, kind in blocks]
 
-    if cfg.mode == "ic_ppp":
+    if cfg.mode == "ic_ppp" and cfg.iono_constraint == "epoch":
         # Model (GIM / broadcast) pseudo-observation of each slant ionosphere, S001 eqs 6-7 (its
         # local-time/latitude term folded into the residual model above; SEED_SPEC 2.5).
         iono = gnss_est[layout.sl("iono")]

@@ -28,7 +28,8 @@ Observation equations (S002 eq 2.25-2.26, in metres; slot s, band b, code type c
   with the single-layer factor, scaled by g (``iono_scale``), times a per-satellite correlated
   residual r_s (unit second-order GM, smooth over seconds) of fraction q. The Klobuchar
   *broadcast model* value the SF user would apply (IS-GPS-200 geometry) is returned as
-  ``iono_model_l1_m``; a filter that applies it sees the residual
+  ``iono_model_l1_m`` (or, with ``ObsParams.gim_error_fraction`` f, a GIM-grade value
+  I + f (I_Klob - I)); a filter that applies it sees the residual
   ``truth.iono_l1_m - iono_model_l1_m``.
 - B^r_c - B^s_c: code biases. Satellite biases follow the precise-clock convention (zero in the
   P1/P2 ionosphere-free combination): B^s_P1 = beta D, B^s_P2 = -alpha D with D = DCB_P1P2 and
@@ -125,6 +126,11 @@ class ObsParams(NamedTuple):
     iono_residual_fraction: float = 0.3  # chosen: Klobuchar leaves 30-50 % of the delay
     iono_residual_tau_s: float = 1800.0  # chosen (second-order GM: smooth at 1 s)
     iono_shell_height_m: float = corrections.IONO_SHELL_HEIGHT_M
+    # None: ``iono_model_l1_m`` is the Klobuchar broadcast value (what an SF receiver has).
+    # A number f: a global ionosphere map (GIM) whose error is f times the Klobuchar residual,
+    # I_GIM = I + f (I_Klob - I), so it keeps that residual's slow (tau 30 min) correlation.
+    # Chosen for S001 (a GIM of 2-4 TECU against a 30-50 % Klobuchar): f = 0.25.
+    gim_error_fraction: float | None = None
     # Precise-product residuals (truth - product), first-order GM.
     orbit_sigma_m: float = 0.025  # per ECEF axis; IGS final orbits ~2.5 cm
     orbit_tau_s: float = 3600.0  # chosen
@@ -641,6 +647,9 @@ def step(
     )
     range_rate = common_dot[:, None] - iono_band_dot + noise_dop
 
+    iono_model = sm.iono_model_l1_m
+    if params.gim_error_fraction is not None:
+        iono_model = sm.iono_l1_m + params.gim_error_fraction * (iono_model - sm.iono_l1_m)
     obs = EpochObs(
         t_s=jnp.asarray(t_s, dtype=jnp.float64),
         code_m=code_m,
@@ -656,7 +665,7 @@ def step(
         sat_clock_rate_m_s=sm.clock_rate_m_s,
         sat_pos_brdc_ecef=sm.pos_tx - brdc_orbit_err,
         sat_clock_brdc_m=sm.sat_clock_poly_m - brdc_clock_err,
-        iono_model_l1_m=sm.iono_model_l1_m,
+        iono_model_l1_m=iono_model,
         truth=None,
     )
     if with_truth:

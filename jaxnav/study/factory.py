@@ -13,6 +13,8 @@ its initial carry and the realisation's stacked inputs (``sweep.Problem``).
     ins_grade = "span_cpt"
     odometer = "obd2_odometer"
     iono_scale = 1.0          # multiplies the simulated ionosphere (1 = 2020 solar minimum)
+    iono_model = "klobuchar"  # the ionosphere model the filters get (SF rows, IC-PPP prior):
+                              # "klobuchar" (30 % residual) or "gim" (a GIM-grade map, S001)
     constellations = ["gps"]  # any of gps, glonass, galileo (S004 multi-GNSS, with ISB states)
     slots = [16, 14, 14]      # fixed satellite slots per constellation (GPS, GLONASS, Galileo)
     bssd = false              # between-satellite single differences (S004) instead of UD
@@ -68,7 +70,12 @@ _SCENARIO_KEYS = {
     "constellations": list,
     "slots": list,
     "bssd": bool,
+    "iono_model": str,
 }
+#: [scenario] iono_model -> (simulator GIM error fraction, the filters' model residual fraction).
+#: The filters' fraction is the simulated residual's sigma (0.3 x the GM residual, times 0.25
+#: for the GIM), rounded up.
+IONO_MODELS = {"klobuchar": (None, 0.3), "gim": (0.25, 0.1)}
 _CONSTELLATIONS = {"gps": signals.SYS_GPS, "glonass": signals.SYS_GLO, "galileo": signals.SYS_GAL}
 _DRIVE_STYLES = ("mixed", "urban", "suburban", "highway", "airborne")
 _STATIC_CALIBRATION_EPOCHS = 30  # the drives start with a 60 s standstill
@@ -113,6 +120,12 @@ class SimFactory:
             raise ValueError(
                 f"[scenario] drive_style = {t['drive_style']!r}: expected one of {_DRIVE_STYLES}"
             )
+        if t.get("iono_model", "klobuchar") not in IONO_MODELS:
+            raise ValueError(
+                f"[scenario] iono_model = {t['iono_model']!r}: expected one of "
+                f"{sorted(IONO_MODELS)}"
+            )
+        gim_fraction, self.iono_model_fraction = IONO_MODELS[t.get("iono_model", "klobuchar")]
         self.bssd = t.get("bssd", False)
         grades = [t.get("imu_grade", "crossbow_imu300cc"), t.get("ins_grade", "span_cpt")]
         for name in grades + [t.get("odometer", "obd2_odometer")]:
@@ -126,7 +139,9 @@ class SimFactory:
             odometer=t.get("odometer", "obd2_odometer"),
             systems=tuple(sorted(_CONSTELLATIONS[c] for c in set(names))),
             slots_per_system=tuple(slots),
-            obs_params=observations.ObsParams(iono_scale=t.get("iono_scale", 1.0)),
+            obs_params=observations.ObsParams(
+                iono_scale=t.get("iono_scale", 1.0), gim_error_fraction=gim_fraction
+            ),
         )
         self.ins_grade = grades[1]
 
@@ -182,6 +197,7 @@ class SimFactory:
             n_slots=int(geo.slots.system.shape[0]),
             estimate_zwd=mode in models.PHASE_MODES,
             bssd=self.bssd,
+            iono_model_residual_fraction=self.iono_model_fraction,
         )
         if system_name in LC_SYSTEMS:
             lcfg = loose.LooseConfig(
