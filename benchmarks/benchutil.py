@@ -65,6 +65,26 @@ class Timer:
         self.s = time.perf_counter() - self.t0
 
 
+def time_calls(fn, args, calls: int, min_s: float = 0.0, min_reps: int = 1,
+               max_s: float = float("inf")):
+    """Wall times [s] (NumPy array) of single calls ``fn(*args)`` after one warm-up call: at least
+    ``max(calls, min_reps)`` calls, repeated until ``min_s`` seconds were measured (but no more
+    than ``max(calls, 25)`` calls); stops early once ``max_s`` seconds were spent and ``min_reps``
+    calls made."""
+    import jax  # here, not at the top: scripts import benchutil before fixing JAX's devices
+    import numpy as np
+
+    jax.block_until_ready(fn(*args))  # warm (first-call allocation)
+    times: list[float] = []
+    while len(times) < max(calls, min_reps) or sum(times) < min_s:
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+        if len(times) >= max(calls, 25) or (sum(times) >= max_s and len(times) >= min_reps):
+            break
+    return np.asarray(times)
+
+
 def command_line() -> str:
     """The command that ran this script, as a user would type it from the project root."""
     return "python " + " ".join(shlex.quote(a) for a in [_relative(sys.argv[0]), *sys.argv[1:]])
@@ -106,3 +126,10 @@ def append_results(title: str, body_md: str, figures: dict, path: Path = RESULTS
 def print_json_line(figures: dict) -> None:
     """The last line a benchmark prints: one JSON object of its headline figures."""
     print(json.dumps(figures, sort_keys=True), flush=True)
+
+
+def finish(name: str, quick: bool, md_lines: list[str], figures: dict, path: Path) -> None:
+    """Append the section ``name`` (`` (quick)`` added for a quick run) to ``path`` and print the
+    JSON line: how a benchmark ends."""
+    append_results(name + (" (quick)" if quick else ""), "\n".join(md_lines), figures, path=path)
+    print_json_line(figures)

@@ -15,6 +15,10 @@ path. It reproduces ``jaxnav.filter.tight.epoch_step`` / ``run`` for one configu
   update with chi-square gating; and tight.py's median pre-fit test, clock-jump re-levelling,
   post-fit test with one redo, per-slot ambiguity resets and closed-loop feedback.
 
+The INS pieces (geodesy, attitude, strapdown, INS15 error dynamics, lever arm, discretisation)
+are shared with ``peers.py`` in ``benchmarks/numpy_nav.py``; the GNSS models, the filter logic
+and the Python-float strapdown recursion are here.
+
 Anything else (RISS, INS21, other modes, GLONASS / Galileo, BSSD) raises in
 :meth:`NumpyTightFilter.from_jax`. ``tests/test_numpy_filter.py`` checks that the two agree to
 round-off on a simulated drive with outages.
@@ -32,266 +36,39 @@ Python floats (~2.5 ms per 1-s epoch on one core, 60 % of it strapdown); ``"vect
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-# ---- constants (the values of jaxnav.geodesy / gnss.corrections, restated for a JAX-free path)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-A_WGS84 = 6378137.0
-F_WGS84 = 1.0 / 298.257223563
-E2_WGS84 = F_WGS84 * (2.0 - F_WGS84)
-OMEGA_E = 7.2921151467e-5
+import numpy_nav as nn  # noqa: E402  (benchmarks/numpy_nav.py: the shared NumPy INS port)
+
+# ---- constants (the values of gnss.corrections, restated for a JAX-free path) ------------------
+
 C_LIGHT = 299792458.0
-_G = (9.7803267715, 0.0052790414, 0.0000232718, -3.087691089e-6, 4.397731e-9, 7.21e-13)
 
 KIND_CODE, KIND_PHASE, KIND_DOPPLER = 0, 1, 2
 
 
-# ---- small vector helpers (3-vectors; np.cross is slow for single vectors) --------------------
-
-
-def _cross(a, b):
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
-
-
-def _cross_rows(a, b):
-    """Row-wise cross products of [K, 3] arrays."""
-    return np.stack(
-        [
-            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-        ],
-        axis=1,
-    )
-
-
-def _skew(v):
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-# ---- geodesy -----------------------------------------------------------------------------------
-
-
-def _radii(lat):
-    """(R_M, R_N) of WGS-84 at latitude ``lat`` (geodesy.radii)."""
-    s = math.sin(lat)
-    w = math.sqrt(1.0 - E2_WGS84 * s * s)
-    return A_WGS84 * (1.0 - E2_WGS84) / w**3, A_WGS84 / w
-
-
-def _normal_gravity(lat, h):
-    s2 = math.sin(lat) ** 2
-    return _G[0] * (1.0 + _G[1] * s2 + _G[2] * s2 * s2) + (_G[3] + _G[4] * s2) * h + _G[5] * h * h
-
-
-def _gravity_slopes(lat, h):
-    """(dg/dlat, dg/dh) of the normal-gravity polynomial (ins/errors.py takes them by autodiff)."""
-    s, c = math.sin(lat), math.cos(lat)
-    s2 = s * s
-    ds2 = 2.0 * s * c
-    dg_dlat = _G[0] * (_G[1] + 2.0 * _G[2] * s2) * ds2 + _G[4] * ds2 * h
-    return dg_dlat, _G[3] + _G[4] * s2 + 2.0 * _G[5] * h
-
-
-def _earth_rate(lat):
-    return np.array([0.0, OMEGA_E * math.cos(lat), OMEGA_E * math.sin(lat)])
-
-
-def _transport_rate(llh, vel):
-    r_m, r_n = _radii(llh[0])
-    h = llh[2]
-    return np.array(
-        [-vel[1] / (r_m + h), vel[0] / (r_n + h), vel[0] * math.tan(llh[0]) / (r_n + h)]
-    )
-
-
-def _llh_rate_matrix(llh):
-    r_m, r_n = _radii(llh[0])
-    h = llh[2]
-    return np.array(
-        [[0.0, 1.0 / (r_m + h), 0.0], [1.0 / ((r_n + h) * math.cos(llh[0])), 0.0, 0.0],
-         [0.0, 0.0, 1.0]]
-    )
-
-
-def _C_l_e(lat, lon):
-    sp, cp = math.sin(lat), math.cos(lat)
-    sl, cl = math.sin(lon), math.cos(lon)
-    return np.array([[-sl, -sp * cl, cp * cl], [cl, -sp * sl, cp * sl], [0.0, cp, sp]])
-
-
-def _llh_to_ecef(llh):
-    lat, lon, h = llh
-    _, r_n = _radii(lat)
-    cl = math.cos(lat)
-    return np.array(
-        [(r_n + h) * cl * math.cos(lon), (r_n + h) * cl * math.sin(lon),
-         (r_n * (1.0 - E2_WGS84) + h) * math.sin(lat)]
-    )
-
-
-def _llh_to_ecef_jacobian(llh):
-    lat, lon, h = llh
-    r_m, r_n = _radii(lat)
-    sp, cp = math.sin(lat), math.cos(lat)
-    sl, cl = math.sin(lon), math.cos(lon)
-    return np.array(
-        [
-            [-(r_m + h) * sp * cl, -(r_n + h) * cp * sl, cp * cl],
-            [-(r_m + h) * sp * sl, (r_n + h) * cp * cl, cp * sl],
-            [(r_m + h) * cp, 0.0, sp],
-        ]
-    )
-
-
-def _radius_derivatives(lat):
-    r_m, r_n = _radii(lat)
-    s, c = math.sin(lat), math.cos(lat)
-    k = E2_WGS84 * s * c / (1.0 - E2_WGS84 * s * s)
-    return r_m, r_n, 3.0 * r_m * k, r_n * k
-
-
-# ---- attitude ----------------------------------------------------------------------------------
-
-
-def _quat_mul(q, r):
-    w1, x1, y1, z1 = q
-    w2, x2, y2, z2 = r
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
-
-
-def _quat_from_rotvec(phi):
-    """[cos(|phi|/2), sin(|phi|/2) phi/|phi|] with the Taylor branch below 1e-4 rad."""
-    theta2 = float(phi @ phi)
-    if theta2 < 1e-8:
-        w, half_sinc = 1.0 - theta2 / 8.0, 0.5 - theta2 / 48.0
-    else:
-        theta = math.sqrt(theta2)
-        w, half_sinc = math.cos(0.5 * theta), math.sin(0.5 * theta) / theta
-    return np.array([w, half_sinc * phi[0], half_sinc * phi[1], half_sinc * phi[2]])
-
-
-def _quats_from_rotvecs(phi):
-    """Row-wise ``_quat_from_rotvec`` of [K, 3] rotation vectors."""
-    theta2 = np.einsum("ki,ki->k", phi, phi)
-    small = theta2 < 1e-8
-    theta = np.sqrt(np.where(small, 1.0, theta2))
-    half_sinc = np.where(small, 0.5 - theta2 / 48.0, np.sin(0.5 * theta) / theta)
-    w = np.where(small, 1.0 - theta2 / 8.0, np.cos(0.5 * theta))
-    return np.concatenate([w[:, None], half_sinc[:, None] * phi], axis=1)
-
-
-def _quat_normalize(q):
-    q = q / math.sqrt(float(q @ q))
-    return -q if q[0] < 0.0 else q
-
-
-def _dcm_from_quat(q):
-    w, v = q[0], q[1:]
-    return (w * w - float(v @ v)) * np.eye(3) + 2.0 * np.outer(v, v) + 2.0 * w * _skew(v)
-
-
-def _euler_from_quat(q):
-    C = _dcm_from_quat(q)
-    return np.array(
-        [
-            math.atan2(-C[2, 0], C[2, 2]),
-            math.asin(min(max(C[2, 1], -1.0), 1.0)),
-            math.atan2(C[0, 1], C[1, 1]),
-        ]
-    )
-
-
-# ---- strapdown ---------------------------------------------------------------------------------
-
-
-def _velocity_position(llh, vel, C, dv_b, u_rot, dv_sf_b, dt, llh_mid, vel_mid):
-    """strapdown._velocity_position: velocity with l-frame rotation terms, trapezoidal position."""
-    w_ie = _earth_rate(llh_mid[0])
-    w_el = _transport_rate(llh_mid, vel_mid)
-    zeta = (w_ie + w_el) * dt
-    u = C @ dv_b
-    zu = _cross(zeta, u)
-    dv_sf_l = C @ dv_sf_b - 0.5 * zu - _cross(zeta, u_rot) / 3.0 + _cross(zeta, zu) / 6.0
-    g = _normal_gravity(llh_mid[0], llh_mid[2])
-    dv_cor = (np.array([0.0, 0.0, -g]) - _cross(2.0 * w_ie + w_el, vel_mid)) * dt
-    vel_new = vel + dv_sf_l + dv_cor
-
-    v_avg = 0.5 * (vel + vel_new)
-    h_new = llh[2] + v_avg[2] * dt
-    h_mid = 0.5 * (llh[2] + h_new)
-    r_m, _ = _radii(llh_mid[0])
-    lat_new = llh[0] + v_avg[1] * dt / (r_m + h_mid)
-    lat_mid = 0.5 * (llh[0] + lat_new)
-    _, r_n = _radii(lat_mid)
-    lon_new = llh[1] + v_avg[0] * dt / ((r_n + h_mid) * math.cos(lat_mid))
-    return np.array([lat_new, lon_new, h_new]), vel_new, zeta
-
-
-def _sample_terms(prev_dth, prev_dv, dth, dv):
-    """Per-sample terms that do not depend on the state, for a whole epoch at once ([K, ...]):
-    the coning quaternion q(phi), the sculled body increment dv_sf and dth x dv."""
-    pdth = np.concatenate([prev_dth[None], dth[:-1]])
-    pdv = np.concatenate([prev_dv[None], dv[:-1]])
-    q_phi = _quats_from_rotvecs(dth + _cross_rows(pdth, dth) / 12.0)
-    rot = _cross_rows(dth, dv)
-    dv_sf = (
-        dv + 0.5 * rot + _cross_rows(dth, rot) / 6.0
-        + (_cross_rows(pdth, dv) + _cross_rows(pdv, dth)) / 12.0
-    )
-    return q_phi, dv_sf, rot
-
-
-def _mechanize_vector(llh, vel, q, prev_dth, prev_dv, dth, dv, dt):
-    """strapdown.mechanize over one epoch's corrected samples [K, 3], state as NumPy 3-vectors.
-
-    The coning / sculling / rotation-compensation terms depend only on the samples, so they are
-    computed for the whole epoch at once; the state recursion is a Python loop.
-    """
-    q_phi, dv_sf, rot = _sample_terms(prev_dth, prev_dv, dth, dv)
-    for k in range(dth.shape[0]):
-        C = _dcm_from_quat(q)
-        u_rot = C @ rot[k]
-        llh_p, vel_p, _ = _velocity_position(llh, vel, C, dv[k], u_rot, dv_sf[k], dt, llh, vel)
-        llh_mid = llh + 0.5 * (llh_p - llh)
-        vel_mid = 0.5 * (vel + vel_p)
-        llh, vel, zeta = _velocity_position(
-            llh, vel, C, dv[k], u_rot, dv_sf[k], dt, llh_mid, vel_mid
-        )
-        q = _quat_mul(_quat_mul(_quat_from_rotvec(-zeta), q), q_phi[k])
-        lon = llh[1]
-        if lon > math.pi:
-            llh[1] = lon - 2.0 * math.pi
-        elif lon <= -math.pi:
-            llh[1] = lon + 2.0 * math.pi
-        q = _quat_normalize(q)
-    return llh, vel, q
+# ---- strapdown: the scalar recursion (numpy_nav.mechanize is the NumPy 3-vector one) ---------
 
 
 def _mechanize_scalar(llh, vel, q, prev_dth, prev_dv, dth, dv, dt):
-    """``_mechanize_vector`` with the per-sample recursion on Python floats.
+    """``numpy_nav.mechanize`` with the per-sample recursion on Python floats.
 
     Same equations and operation order; for 3-vectors, scalar arithmetic avoids NumPy's
     per-call overhead (about 5x faster), which makes this the fairer CPU baseline.
     """
-    q_phi, dv_sf, rot = _sample_terms(prev_dth, prev_dv, dth, dv)
+    q_phi, dv_sf, rot = nn.sample_terms(prev_dth, prev_dv, dth, dv)
     q_phi, dv_sf, rot, dvs = q_phi.tolist(), dv_sf.tolist(), rot.tolist(), dv.tolist()
     lat, lon, h = (float(v) for v in llh)
     ve, vn, vu = (float(v) for v in vel)
     qw, qx, qy, qz = (float(v) for v in q)
-    e2, a_e, we = E2_WGS84, A_WGS84, OMEGA_E
-    g0, g1, g2, g3, g4, g5 = _G
+    e2, a_e, we = nn.E2_WGS84, nn.A_WGS84, nn.OMEGA_E
+    g0, g1, g2, g3, g4, g5 = nn.GRAVITY_COEFFS
     sin, cos, tan, sqrt = math.sin, math.cos, math.tan, math.sqrt
 
     for k in range(len(dvs)):
@@ -484,53 +261,15 @@ def _process_model(nf: NumpyTightFilter, llh, vel, C, f_b):
     ppp.gnss_dynamics; the GNSS states are driven by identity columns of their own PSDs)."""
     L = nf.layout
     n = L.size
-    P, V, E = L.sl("pos"), L.sl("vel"), L.sl("att")
-    lat, h = llh[0], llh[2]
-    ve, vn = vel[0], vel[1]
-    r_m, r_n, dr_m, dr_n = _radius_derivatives(lat)
-    rho_m, rho_n = r_m + h, r_n + h
-    s, c, t = math.sin(lat), math.cos(lat), math.tan(lat)
-    we = OMEGA_E
-    F_rr = np.array(
-        [
-            [-vn * dr_m / rho_m**2, 0.0, -vn / rho_m**2],
-            [ve * (t / (rho_n * c) - dr_n / (rho_n**2 * c)), 0.0, -ve / (rho_n**2 * c)],
-            [0.0, 0.0, 0.0],
-        ]
-    )
-    dwie_dr = np.array([[0.0, 0.0, 0.0], [-we * s, 0.0, 0.0], [we * c, 0.0, 0.0]])
-    dwel_dr = np.array(
-        [
-            [vn * dr_m / rho_m**2, 0.0, vn / rho_m**2],
-            [-ve * dr_n / rho_n**2, 0.0, -ve / rho_n**2],
-            [ve / (c * c * rho_n) - ve * t * dr_n / rho_n**2, 0.0, -ve * t / rho_n**2],
-        ]
-    )
-    dwel_dv = np.array([[0.0, -1.0 / rho_m, 0.0], [1.0 / rho_n, 0.0, 0.0], [t / rho_n, 0.0, 0.0]])
-    dg_dlat, dg_dh = _gravity_slopes(lat, h)
-    grav = np.zeros((3, 3))
-    grav[2, 0], grav[2, 2] = -dg_dlat, -dg_dh
-    w_ie = _earth_rate(lat)
-    w_el = _transport_rate(llh, vel)
-    v_x = _skew(vel)
-
+    V, E = L.sl("vel"), L.sl("att")
     F = np.zeros((n, n))
-    F[P, P] = F_rr
-    F[P, V] = _llh_rate_matrix(llh)
-    F[V, P] = v_x @ (2.0 * dwie_dr + dwel_dr) + grav
-    F[V, V] = -_skew(2.0 * w_ie + w_el) + v_x @ dwel_dv
-    F[V, E] = _skew(C @ f_b)
-    F[E, P] = dwie_dr + dwel_dr
-    F[E, V] = dwel_dv
-    F[E, E] = -_skew(w_ie + w_el)
-    BA, BG = L.sl("accel_bias"), L.sl("gyro_bias")
-    F[V, BA] = C
-    F[E, BG] = -C
-    F[BA, BA] = np.diag(-1.0 / nf.accel_bias_tau_s)
-    F[BG, BG] = np.diag(-1.0 / nf.gyro_bias_tau_s)
+    blocks = nn.ins15_error_dynamics(llh, vel, C, f_b, nf.accel_bias_tau_s, nf.gyro_bias_tau_s)
+    for (row, col), block in blocks.items():
+        F[L.sl(row), L.sl(col)] = block
     F[L.i("clock_bias"), L.i("clock_drift")] = 1.0
 
     # G Qc G^T: white accelerometer / gyro noise through C and -C, GM drivers, GNSS random walks.
+    BA, BG = L.sl("accel_bias"), L.sl("gyro_bias")
     Qg = np.zeros((n, n))
     Qg[V, V] = (C * nf.accel_vrw**2) @ C.T
     Qg[E, E] = (C * nf.gyro_arw**2) @ C.T
@@ -543,13 +282,8 @@ def _process_model(nf: NumpyTightFilter, llh, vel, C, f_b):
 
 
 def _propagate_covariance(nf: NumpyTightFilter, P, F, Qg):
-    """ekf.discretize_taylor + ekf.predict: Phi = I + F dt + (F dt)^2 / 2,
-    Qd = (Phi Qg Phi^T + Qg) dt / 2, P <- Phi P Phi^T + Qd (each symmetrised)."""
-    dt = nf.epoch_dt_s
-    Fdt = F * dt
-    Phi = np.eye(F.shape[0]) + Fdt + 0.5 * Fdt @ Fdt
-    Qd = 0.5 * (Phi @ Qg @ Phi.T + Qg) * dt
-    Qd = 0.5 * (Qd + Qd.T)
+    """ekf.discretize_taylor + ekf.predict: P <- Phi P Phi^T + Qd (symmetrised)."""
+    Phi, Qd = nn.discretize_taylor(F, Qg, nf.epoch_dt_s)
     P = Phi @ P @ Phi.T + Qd
     return 0.5 * (P + P.T)
 
@@ -557,46 +291,23 @@ def _propagate_covariance(nf: NumpyTightFilter, P, F, Qg):
 def _antenna(nf: NumpyTightFilter, llh, vel, C, w_ib_b):
     """InsSystem.antenna: antenna ECEF position / velocity and their Jacobians w.r.t. dx."""
     L = nf.layout
-    n = L.size
-    lever = nf.lever_b
-    u = C @ lever
-    D = _llh_rate_matrix(llh)
-    llh_ant = llh + D @ u
-    w_ie = _earth_rate(llh[0])
-    c_wl = C @ _cross(w_ib_b, lever)
-    vel_ant = vel + c_wl - _cross(w_ie, u)
-    C_l_e = _C_l_e(llh_ant[0], llh_ant[1])
-
-    lat, h = llh[0], llh[2]
-    r_m, r_n, dr_m, dr_n = _radius_derivatives(lat)
-    rho_m, rho_n = r_m + h, r_n + h
-    c, t, s = math.cos(lat), math.tan(lat), math.sin(lat)
-    dDu = np.array(
-        [
-            [-u[1] * dr_m / rho_m**2, 0.0, -u[1] / rho_m**2],
-            [u[0] * (t / (rho_n * c) - dr_n / (rho_n**2 * c)), 0.0, -u[0] / (rho_n**2 * c)],
-            [0.0, 0.0, 0.0],
-        ]
+    llh_ant, vel_ant, J_llh_blocks, J_vel_blocks = nn.antenna_lever_arm(
+        llh, vel, C, w_ib_b, nf.lever_b
     )
-    J_llh = np.zeros((3, n))
-    J_llh[:, L.sl("pos")] = np.eye(3) + dDu
-    J_llh[:, L.sl("att")] = D @ _skew(u)
-    dwie_dr = np.array(
-        [[0.0, 0.0, 0.0], [-OMEGA_E * s, 0.0, 0.0], [OMEGA_E * c, 0.0, 0.0]]
-    )
-    J_v = np.zeros((3, n))
-    J_v[:, L.sl("vel")] = np.eye(3)
-    J_v[:, L.sl("pos")] = _skew(u) @ dwie_dr
-    J_v[:, L.sl("att")] = _skew(c_wl) - _skew(w_ie) @ _skew(u)
-    J_v[:, L.sl("gyro_bias")] = -C @ _skew(lever)
+    J_llh = np.zeros((3, L.size))
+    for name, block in J_llh_blocks.items():
+        J_llh[:, L.sl(name)] = block
+    J_v = np.zeros((3, L.size))
+    for name, block in J_vel_blocks.items():
+        J_v[:, L.sl(name)] = block
+    C_l_e = nn.C_l_e(llh_ant[0], llh_ant[1])
     return (
-        _llh_to_ecef(llh_ant),
+        nn.llh_to_ecef(llh_ant),
         C_l_e @ vel_ant,
         llh_ant,
-        _llh_to_ecef_jacobian(llh_ant) @ J_llh,
+        nn.llh_to_ecef_jacobian(llh_ant) @ J_llh,
         C_l_e @ J_v,
     )
-
 
 # ---- GNSS models (gnss/models.py, gnss/corrections.py) -----------------------------------------
 
@@ -644,7 +355,7 @@ def _zhd(lat, h):
 
 def _earth_rotate(v, tau):
     """R3(w_e tau) v for [S, 3] vectors and [S] travel times."""
-    th = OMEGA_E * tau
+    th = nn.OMEGA_E * tau
     c, s = np.cos(th), np.sin(th)
     return np.stack([c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], v[:, 2]], axis=1)
 
@@ -661,7 +372,7 @@ def _geometry(rx_pos, rx_vel, sat_pos, sat_vel):
 
 
 def _elevation(los, rx_llh):
-    C = _C_l_e(rx_llh[0], rx_llh[1])
+    C = nn.C_l_e(rx_llh[0], rx_llh[1])
     return np.arcsin(np.clip(los @ C[:, 2], -1.0, 1.0))
 
 
@@ -696,13 +407,16 @@ def _masked_update(P, y, H, r_var, mask, gate):
 
 def _update_with_postfit(nf: NumpyTightFilter, P, dz, H, r_var, mask, slot, kind):
     """tight._update_with_postfit: one update; if the worst normalised post-fit residual of the
-    used rows exceeds the threshold, drop it (its whole slot for a code row) and redo."""
+    used rows exceeds the threshold, drop it (for a code row: its slot's code rows) and redo."""
     x, P1, used, nis = _masked_update(P, dz, H, r_var, mask, nf.gate_chi2)
     resid = (dz - H @ x) / np.sqrt(np.einsum("ij,jk,ik->i", H, P1, H) + r_var)
     score = np.where(used, np.abs(resid), 0.0)
     worst = int(np.argmax(score))
     if score[worst] > nf.postfit_sigma:
-        drop = slot == slot[worst] if kind[worst] == KIND_CODE else np.arange(dz.size) == worst
+        if kind[worst] == KIND_CODE:
+            drop = (slot == slot[worst]) & (kind == KIND_CODE)
+        else:
+            drop = np.arange(dz.size) == worst
         x, P1, used, nis = _masked_update(P, dz, H, r_var, used & ~drop, nf.gate_chi2)
     return x, P1, used, nis
 
@@ -730,7 +444,7 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     )
     span = dt * dth.shape[0]
     f_b, w_ib_b = dv.sum(0) / span, dth.sum(0) / span
-    C = _dcm_from_quat(q)
+    C = nn.dcm_from_quat(q)
 
     F, Qg = _process_model(nf, llh, vel, C, f_b)
     P = _propagate_covariance(nf, st["P"], F, Qg)
@@ -811,7 +525,7 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     # Closed-loop feedback (errors.feedback, errors.feedback_sensors) and GNSS totals.
     llh = llh - x[L.sl("pos")]
     vel = vel - x[L.sl("vel")]
-    q = _quat_normalize(_quat_mul(_quat_from_rotvec(x[L.sl("att")]), q))
+    q = nn.quat_normalize(nn.quat_mul(nn.quat_from_rotvec(x[L.sl("att")]), q))
     accel_bias = st["accel_bias"] + (1.0 + st["accel_scale"]) * x[L.sl("accel_bias")]
     gyro_bias = st["gyro_bias"] + (1.0 + st["gyro_scale"]) * x[L.sl("gyro_bias")]
     gnss[nf.n_sys :] -= x[nf.n_sys :]
@@ -824,8 +538,8 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
         accel_scale=st["accel_scale"], gyro_scale=st["gyro_scale"],
         gnss=gnss, P=P, tracked=tracked, elevation=np.where(usable, el, st["elevation"]),
     )
-    out = (llh, vel, _euler_from_quat(q), P[: nf.n_nav, : nf.n_nav], nis, int(used.sum()),
-           gnss[i_clk])
+    euler = nn.euler_from_dcm(nn.dcm_from_quat(q))
+    out = (llh, vel, euler, P[: nf.n_nav, : nf.n_nav], nis, int(used.sum()), gnss[i_clk])
     return new, out
 
 
@@ -844,7 +558,7 @@ def run(nf: NumpyTightFilter, carry0, inputs, strapdown: str = "scalar") -> dict
     ``strapdown``: "scalar" (default) runs the IMU-rate recursion on Python floats, "vector" on
     NumPy 3-vectors (same equations; about 5x slower from NumPy's per-call overhead).
     """
-    mechanize = {"scalar": _mechanize_scalar, "vector": _mechanize_vector}[strapdown]
+    mechanize = {"scalar": _mechanize_scalar, "vector": nn.mechanize}[strapdown]
     c = _to_numpy(carry0)
     inp = _to_numpy(inputs)
     (nav, prev), sens = c.nav, c.sensors

@@ -15,7 +15,7 @@ on the same input arrays, with the outputs checked to agree before any time is r
 2. Loosely coupled INS. ``jaxnav.filter.loose`` with the INS15 system on a simulated 100 Hz
    drive with 1 Hz GNSS position + velocity fixes at a lever-armed antenna and one GNSS outage,
    B realisations (IMU turn-on biases and white noise, GNSS noise) vmapped and jitted.
-   NumPy: the same filter ported here (``NumpyLooseIns15``: strapdown step with coning,
+   NumPy: the same filter ported (``NumpyLooseIns15`` + ``numpy_nav``: strapdown step with coning,
    sculling and second-order l-frame terms, INS15 F/G/Qc, Taylor discretisation, lever-armed
    position/velocity rows, Joseph update, closed-loop feedback), a Python loop over epochs and
    IMU samples, one realisation at a time. FilterPy: ``kalman.ExtendedKalmanFilter`` carries
@@ -63,6 +63,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchutil  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
+import numpy_nav as nn  # noqa: E402  (the NumPy INS port shared with numpy_filter.py)
 
 import jaxnav  # noqa: E402, F401  (float64)
 from jaxnav import attitude, geodesy  # noqa: E402
@@ -429,207 +430,9 @@ def ins_jaxnav(lf, carry0, dth, dv, fix_llh, fix_vel, valid):
 
 
 # ---- NumPy port of loose.epoch_step for InsSystem(INS15) with LooseConfig() defaults ----------
-_A, _E2, _WE = geodesy.A_WGS84, geodesy.E2_WGS84, geodesy.OMEGA_E
-_G1, _G2, _G3, _G4, _G5, _G6 = (
-    geodesy._G_A1,
-    geodesy._G_A2,
-    geodesy._G_A3,
-    geodesy._G_A4,
-    geodesy._G_A5,
-    geodesy._G_A6,
-)
+# The INS pieces (strapdown, INS15 error dynamics, lever arm) are benchmarks/numpy_nav.py, shared
+# with numpy_filter.py.
 _I3 = np.eye(3)
-
-
-def _cross(a, b):
-    # np.cross costs ~10 us on 3-vectors; the explicit form is several times faster.
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
-
-
-def _cross_rows(a, b):
-    return np.stack(
-        [
-            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-        ],
-        -1,
-    )
-
-
-def _skew(v):
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def _radii(lat):
-    """R_M = a (1 - e^2) / W^3, R_N = a / W, W = sqrt(1 - e^2 sin^2 lat)."""
-    w = math.sqrt(1.0 - _E2 * math.sin(lat) ** 2)
-    return _A * (1.0 - _E2) / w**3, _A / w
-
-
-def _gravity(lat, h):
-    """Normal gravity (SEED_SPEC 1.1) and its slopes dg/dlat, dg/dh (analytic)."""
-    s = math.sin(lat)
-    s2 = s * s
-    g = _G1 * (1.0 + _G2 * s2 + _G3 * s2 * s2) + (_G4 + _G5 * s2) * h + _G6 * h * h
-    ds2 = 2.0 * s * math.cos(lat)
-    return g, (_G1 * (_G2 + 2.0 * _G3 * s2) + _G5 * h) * ds2, _G4 + _G5 * s2 + 2.0 * _G6 * h
-
-
-def _earth_rate(lat):
-    return np.array([0.0, _WE * math.cos(lat), _WE * math.sin(lat)])
-
-
-def _transport_rate(llh, vel):
-    r_m, r_n = _radii(llh[0])
-    return np.array(
-        [
-            -vel[1] / (r_m + llh[2]),
-            vel[0] / (r_n + llh[2]),
-            vel[0] * math.tan(llh[0]) / (r_n + llh[2]),
-        ]
-    )
-
-
-def _llh_rate_matrix(llh):
-    r_m, r_n = _radii(llh[0])
-    return np.array(
-        [
-            [0.0, 1.0 / (r_m + llh[2]), 0.0],
-            [1.0 / ((r_n + llh[2]) * math.cos(llh[0])), 0.0, 0.0],
-            [0.0, 0.0, 1.0],
-        ]
-    )
-
-
-def _C_l_e(lat, lon):
-    sp, cp, sl, cl = math.sin(lat), math.cos(lat), math.sin(lon), math.cos(lon)
-    return np.array([[-sl, -sp * cl, cp * cl], [cl, -sp * sl, cp * sl], [0.0, cp, sp]])
-
-
-def _quat_mul(q, r):
-    w1, x1, y1, z1 = q
-    w2, x2, y2, z2 = r
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
-
-
-def _quat_from_rotvec(phi):
-    """[cos(|phi|/2), sin(|phi|/2) phi / |phi|], Taylor series below |phi| = 1e-4 as jaxnav."""
-    t2 = float(phi @ phi)
-    if t2 < 1e-8:
-        return np.concatenate([[1.0 - t2 / 8.0], (0.5 - t2 / 48.0) * phi])
-    t = math.sqrt(t2)
-    return np.concatenate([[math.cos(0.5 * t)], math.sin(0.5 * t) / t * phi])
-
-
-def _quat_normalize(q):
-    q = q / math.sqrt(float(q @ q))
-    return -q if q[0] < 0.0 else q
-
-
-def _dcm_from_quat(q):
-    w, v = q[0], q[1:]
-    return (w * w - v @ v) * _I3 + 2.0 * np.outer(v, v) + 2.0 * w * _skew(v)
-
-
-def _euler_from_dcm(C):
-    return np.array(
-        [
-            math.atan2(-C[2, 0], C[2, 2]),
-            math.asin(min(1.0, max(-1.0, C[2, 1]))),
-            math.atan2(C[0, 1], C[1, 1]),
-        ]
-    )
-
-
-def _velocity_position(llh, vel, C, dv_b, u_rot_b, dv_sf_b, dt, llh_mid, vel_mid):
-    """strapdown._velocity_position: velocity with mid-interval gravity / Coriolis, l-frame
-    rotation terms to second order in zeta, trapezoidal position (h, then lat, then lon)."""
-    w_ie = _earth_rate(llh_mid[0])
-    w_el = _transport_rate(llh_mid, vel_mid)
-    zeta = (w_ie + w_el) * dt
-    u = C @ dv_b
-    u_rot = C @ u_rot_b
-    zu = _cross(zeta, u)
-    dv_sf_l = C @ dv_sf_b - 0.5 * zu - _cross(zeta, u_rot) / 3.0 + _cross(zeta, zu) / 6.0
-    g, _, _ = _gravity(llh_mid[0], llh_mid[2])
-    dv_cor = (np.array([0.0, 0.0, -g]) - _cross(2.0 * w_ie + w_el, vel_mid)) * dt
-    vel_new = vel + dv_sf_l + dv_cor
-    v_avg = 0.5 * (vel + vel_new)
-    h_new = llh[2] + v_avg[2] * dt
-    h_mid = 0.5 * (llh[2] + h_new)
-    r_m, _ = _radii(llh_mid[0])
-    lat_new = llh[0] + v_avg[1] * dt / (r_m + h_mid)
-    lat_mid = 0.5 * (llh[0] + lat_new)
-    _, r_n = _radii(lat_mid)
-    lon_new = llh[1] + v_avg[0] * dt / ((r_n + h_mid) * math.cos(lat_mid))
-    return np.array([lat_new, lon_new, h_new]), vel_new, zeta
-
-
-def _mechanize(llh, vel, q, prev_dth, prev_dv, dth, dv, dt):
-    """strapdown.mechanize over one epoch's compensated samples [K, 3] (coning, sculling)."""
-    prev_th = np.vstack([prev_dth[None], dth[:-1]])
-    prev_v = np.vstack([prev_dv[None], dv[:-1]])
-    phi = dth + _cross_rows(prev_th, dth) / 12.0  # coning (Savage two-sample)
-    rot = _cross_rows(dth, dv)
-    dv_sf = (
-        dv
-        + 0.5 * rot
-        + _cross_rows(dth, rot) / 6.0
-        + (_cross_rows(prev_th, dv) + _cross_rows(prev_v, dth)) / 12.0
-    )  # sculling
-    for k in range(dth.shape[0]):
-        C = _dcm_from_quat(q)
-        llh_p, vel_p, _ = _velocity_position(llh, vel, C, dv[k], rot[k], dv_sf[k], dt, llh, vel)
-        llh_mid = llh + 0.5 * (llh_p - llh)
-        vel_mid = 0.5 * (vel + vel_p)
-        llh, vel, zeta = _velocity_position(
-            llh, vel, C, dv[k], rot[k], dv_sf[k], dt, llh_mid, vel_mid
-        )
-        q = _quat_mul(_quat_mul(_quat_from_rotvec(-zeta), q), _quat_from_rotvec(phi[k]))
-        if llh[1] > math.pi:
-            llh[1] -= 2.0 * math.pi
-        elif llh[1] <= -math.pi:
-            llh[1] += 2.0 * math.pi
-        q = _quat_normalize(q)
-    return llh, vel, q
-
-
-def _nav_partials(llh, vel):
-    """ins.errors._nav_partials: d(D^-1 v), d w_ie, d w_el by (lat, lon, h) and d w_el by v."""
-    lat, h = llh[0], llh[2]
-    ve, vn = vel[0], vel[1]
-    r_m, r_n = _radii(lat)
-    s, c, t = math.sin(lat), math.cos(lat), math.tan(lat)
-    k = _E2 * s * c / (1.0 - _E2 * s * s)
-    dr_m, dr_n = 3.0 * r_m * k, r_n * k
-    rm, rn = r_m + h, r_n + h
-    F_rr = np.array(
-        [
-            [-vn * dr_m / rm**2, 0.0, -vn / rm**2],
-            [ve * (t / (rn * c) - dr_n / (rn**2 * c)), 0.0, -ve / (rn**2 * c)],
-            [0.0, 0.0, 0.0],
-        ]
-    )
-    dwie = np.array([[0.0, 0.0, 0.0], [-_WE * s, 0.0, 0.0], [_WE * c, 0.0, 0.0]])
-    dwel = np.array(
-        [
-            [vn * dr_m / rm**2, 0.0, vn / rm**2],
-            [-ve * dr_n / rn**2, 0.0, -ve / rn**2],
-            [ve / (c * c * rn) - ve * t * dr_n / rn**2, 0.0, -ve * t / rn**2],
-        ]
-    )
-    dwel_dv = np.array([[0.0, -1.0 / rm, 0.0], [1.0 / rn, 0.0, 0.0], [t / rn, 0.0, 0.0]])
-    return F_rr, dwie, dwel, dwel_dv, (r_m, r_n, dr_m, dr_n)
 
 
 class NumpyLooseIns15:
@@ -662,25 +465,10 @@ class NumpyLooseIns15:
 
     def dynamics(self, llh, vel, C, f_b, w_b):
         """ins.errors.error_dynamics for INS15: F (15, 15), G (15, 12)."""
-        F_rr, dwie, dwel, dwel_dv, _ = _nav_partials(llh, vel)
-        _, dg_dlat, dg_dh = _gravity(llh[0], llh[2])
-        w_ie, w_el = _earth_rate(llh[0]), _transport_rate(llh, vel)
-        v_x = _skew(vel)
         F = np.zeros((15, 15))
-        F[0:3, 0:3] = F_rr
-        F[0:3, 3:6] = _llh_rate_matrix(llh)
-        F[3:6, 0:3] = v_x @ (2.0 * dwie + dwel)
-        F[5, 0] -= dg_dlat
-        F[5, 2] -= dg_dh
-        F[3:6, 3:6] = -_skew(2.0 * w_ie + w_el) + v_x @ dwel_dv
-        F[3:6, 6:9] = _skew(C @ f_b)
-        F[6:9, 0:3] = dwie + dwel
-        F[6:9, 3:6] = dwel_dv
-        F[6:9, 6:9] = -_skew(w_ie + w_el)
-        F[3:6, 9:12] = C
-        F[6:9, 12:15] = -C
-        F[9:12, 9:12] = np.diag(-1.0 / self.tau_a)
-        F[12:15, 12:15] = np.diag(-1.0 / self.tau_g)
+        blocks = nn.ins15_error_dynamics(llh, vel, C, f_b, self.tau_a, self.tau_g)
+        for (row, col), block in blocks.items():
+            F[INS15.sl(row), INS15.sl(col)] = block
         G = np.zeros((15, 12))
         G[3:6, 0:3] = C
         G[6:9, 3:6] = -C
@@ -691,36 +479,21 @@ class NumpyLooseIns15:
     def rows(self, llh, vel, C, w_b, fix_llh, fix_vel):
         """GNSS position (ENU m) and velocity rows of the lever-armed antenna (loose._gnss_rows
         with InsSystem.antenna; the Jacobians of ins.errors.antenna_*_jacobian)."""
-        lev = self.lever_b
-        u = C @ lev
-        D = _llh_rate_matrix(llh)
-        llh_ant = llh + D @ u
-        w_ie = _earth_rate(llh[0])
-        C_wl = C @ _cross(w_b, lev)
-        vel_ant = vel + C_wl - _cross(w_ie, u)
-        _, dwie, _, _, (r_m, r_n, dr_m, dr_n) = _nav_partials(llh, vel)
-        lat, h = llh[0], llh[2]
-        rm, rn, c, t = r_m + h, r_n + h, math.cos(lat), math.tan(lat)
-        J_llh = np.zeros((3, 15))
-        J_llh[:, 0:3] = _I3 + np.array(
-            [
-                [-u[1] * dr_m / rm**2, 0.0, -u[1] / rm**2],
-                [u[0] * (t / (rn * c) - dr_n / (rn**2 * c)), 0.0, -u[0] / (rn**2 * c)],
-                [0.0, 0.0, 0.0],
-            ]
+        llh_ant, vel_ant, J_llh_blocks, J_vel_blocks = nn.antenna_lever_arm(
+            llh, vel, C, w_b, self.lever_b
         )
-        J_llh[:, 6:9] = D @ _skew(u)
+        J_llh = np.zeros((3, 15))
+        for name, block in J_llh_blocks.items():
+            J_llh[:, INS15.sl(name)] = block
         J_vel = np.zeros((3, 15))
-        J_vel[:, 3:6] = _I3
-        J_vel[:, 0:3] = _skew(u) @ dwie
-        J_vel[:, 6:9] = _skew(C_wl) - _skew(w_ie) @ _skew(u)
-        J_vel[:, 12:15] = -C @ _skew(lev)
-        r_ma, r_na = _radii(llh_ant[0])
+        for name, block in J_vel_blocks.items():
+            J_vel[:, INS15.sl(name)] = block
+        r_ma, r_na = nn.radii(llh_ant[0])
         m_north, m_east = r_ma + llh_ant[2], (r_na + llh_ant[2]) * math.cos(llh_ant[0])
         to_enu = np.array([[0.0, m_east, 0.0], [m_north, 0.0, 0.0], [0.0, 0.0, 1.0]])
         dllh = llh_ant - fix_llh
         dllh[1] = math.atan2(math.sin(dllh[1]), math.cos(dllh[1]))
-        C_l_e = _C_l_e(llh_ant[0], llh_ant[1])
+        C_l_e = nn.C_l_e(llh_ant[0], llh_ant[1])
         dz = np.concatenate([to_enu @ dllh, C_l_e.T @ (C_l_e @ vel_ant) - fix_vel])
         H = np.vstack([to_enu @ J_llh, J_vel])
         R = np.diag([self.pos_scale * SIGMA_POS_M**2] * 3 + [self.vel_scale * SIGMA_VEL_M_S**2] * 3)
@@ -740,25 +513,21 @@ class NumpyLooseIns15:
         for e in range(n_ep):
             th_c = dth[e] - bg * dt  # compensation (scale factors are not in INS15)
             v_c = dv[e] - ba * dt
-            llh, vel, q = _mechanize(llh, vel, q, prev_th, prev_v, th_c, v_c, dt)
+            llh, vel, q = nn.mechanize(llh, vel, q, prev_th, prev_v, th_c, v_c, dt)
             prev_th, prev_v = th_c[-1], v_c[-1]
             f_b, w_b = v_c.sum(0) / span, th_c.sum(0) / span
-            C = _dcm_from_quat(q)
+            C = nn.dcm_from_quat(q)
             F, G = self.dynamics(llh, vel, C, f_b, w_b)
             # ekf.discretize_taylor: second-order Phi, trapezoidal Qd.
-            Fdt = F * span
-            Phi = np.eye(15) + Fdt + 0.5 * Fdt @ Fdt
-            Qg = (G * self.qc) @ G.T
-            Qd = 0.5 * (Phi @ Qg @ Phi.T + Qg) * span
-            Qd = 0.5 * (Qd + Qd.T)
+            Phi, Qd = nn.discretize_taylor(F, (G * self.qc) @ G.T, span)
             dz, H, R = self.rows(llh, vel, C, prev_th / dt, fix_llh[e], fix_vel[e])
             dx, P = self._filter(P, Phi, Qd, dz, H, R, bool(valid[e]))
             llh = llh - dx[0:3]
             vel = vel - dx[3:6]
-            q = _quat_normalize(_quat_mul(_quat_from_rotvec(dx[6:9]), q))
+            q = nn.quat_normalize(nn.quat_mul(nn.quat_from_rotvec(dx[6:9]), q))
             ba, bg = ba + dx[9:12], bg + dx[12:15]
             out["llh"][e], out["vel"][e] = llh, vel
-            out["euler"][e] = _euler_from_dcm(_dcm_from_quat(q))
+            out["euler"][e] = nn.euler_from_dcm(nn.dcm_from_quat(q))
             out["P_nav"][e], out["ba"][e], out["bg"][e] = P[:9, :9], ba, bg
         return out
 

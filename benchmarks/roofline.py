@@ -106,12 +106,7 @@ def lapack_flops(hlo: str) -> tuple[float, dict]:
 
 def best_time(fn, args, calls: int) -> tuple[float, float]:
     """(fastest, median) wall time [s] of ``calls`` calls after a warm-up call."""
-    jax.block_until_ready(fn(*args))
-    ts = []
-    for _ in range(calls):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        ts.append(time.perf_counter() - t0)
+    ts = bu.time_calls(fn, args, calls)
     return float(min(ts)), float(np.median(ts))
 
 
@@ -321,9 +316,7 @@ def main(argv=None) -> int:
         "",
         "The machine is shared with other jobs: the times are pessimistic.",
     ]
-    bu.append_results("roofline" + (" (quick)" if args.quick else ""), "\n".join(md), figures,
-                      path=args.results)
-    bu.print_json_line(figures)
+    bu.finish("roofline", args.quick, md, figures, args.results)
     return 0
 
 

@@ -172,23 +172,6 @@ def compile_window(win: Window, width: int):
     return compiled, args, t.s
 
 
-def time_calls(compiled, args, calls: int, min_s: float = MIN_TIMED_S, min_reps: int = 3,
-               max_s: float = float("inf")) -> np.ndarray:
-    """Wall times [s] of single calls: ``calls`` sequential calls (one batch as chunks), repeated
-    until at least ``min_reps`` calls and ``min_s`` seconds were measured; stops early once
-    ``max_s`` seconds were spent (the batch wall time is then extrapolated from the calls made,
-    and ``Point.calls_timed`` says so)."""
-    jax.block_until_ready(compiled(*args))  # warm (first-call allocation)
-    times: list[float] = []
-    while len(times) < max(calls, min_reps) or sum(times) < min_s:
-        t0 = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - t0)
-        if len(times) >= max(calls, 25) or (sum(times) >= max_s and len(times) >= min_reps):
-            break
-    return np.asarray(times)
-
-
 class Point(NamedTuple):
     """One measurement: ``batch`` scenarios as ceil(batch / width) calls of ``width``."""
 
@@ -237,7 +220,7 @@ def measure(win: Window, batches, chunk: int = CHUNK, cache: dict | None = None,
         if w not in cache:
             cache[w] = compile_window(win, w)
         compiled, args, comp_s = cache[w]
-        t = time_calls(compiled, args, -(-b // w), max_s=max_s)
+        t = bu.time_calls(compiled, args, -(-b // w), min_s=MIN_TIMED_S, min_reps=3, max_s=max_s)
         p = Point(win.system, b, w, win.n_epochs, win.gps_slots, win.n_states, comp_s,
                   float(t.min()), float(np.median(t)), memory_mb(compiled), int(t.size))
         pts.append(p)
@@ -313,7 +296,7 @@ def worker(path: str, width: int, devices: int) -> None:
         args = jax.device_put(args, NamedSharding(mesh, Spec("batch")))
     with bu.Timer() as tc:
         compiled = jax.jit(fn).lower(*args).compile()
-    t = time_calls(compiled, args, 1, min_s=0.0, min_reps=3)
+    t = bu.time_calls(compiled, args, 1, min_s=0.0, min_reps=3)
     print(json.dumps({"width": width, "devices": devices, "compile_s": tc.s,
                       "call_min_s": float(t.min()), "call_median_s": float(np.median(t)),
                       "per_scenario_ms": 1e3 * float(t.min()) / width,
@@ -628,9 +611,7 @@ def main(argv=None) -> int:
            "The machine is shared with other jobs: the times are pessimistic."]
     print(f"\nprocess peak RSS {figures['peak_rss_mb']:.0f} MB; total {figures['total_s']:.0f} s",
           flush=True)
-    bu.append_results("scaling" + (" (quick)" if args.quick else ""), "\n".join(md), figures,
-                      path=args.results)
-    bu.print_json_line(figures)
+    bu.finish("scaling", args.quick, md, figures, args.results)
     return 0
 
 

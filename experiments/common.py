@@ -10,12 +10,21 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import hashlib
+import json
 import math
 import platform
 from collections.abc import Sequence
 from pathlib import Path
 
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
 import jaxnav
+from jaxnav.filter import tight
+from jaxnav.study import metrics
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -80,3 +89,31 @@ def write_report(out: Path, title: str, sections: Sequence[tuple[str, str]], qui
     path = out / "report.md"
     path.write_text("\n".join(head + body))
     return path
+
+
+def full_availability_errors(factory, cfg, mode, system, seeds, cache: Path) -> np.ndarray:
+    """ENU error [R, T, 3] (estimate - truth, m) of whole runs with every satellite, one
+    vmapped ``tight.run`` over the realisations ``seeds`` of ``factory.build(cfg, mode, system,
+    seed)``; cached in ``cache`` (.npz) under a key of everything that determines it."""
+    key = hashlib.sha256(json.dumps(
+        [factory.fingerprint(), mode, system, list(map(int, seeds)), jaxnav.__version__],
+        sort_keys=True).encode()).hexdigest()
+    if cache.exists():
+        with np.load(cache) as z:
+            if str(z["key"]) == key:
+                return z["err_enu_m"]
+    probs = [factory.build(cfg, mode, system, int(s)) for s in seeds]
+    carry0 = jax.tree.map(lambda *a: jnp.stack(a), *[p.carry0 for p in probs])
+    inputs = jax.tree.map(lambda *a: jnp.stack(a), *[p.inputs for p in probs])
+
+    @eqx.filter_jit
+    def run(tf, carry0, inputs):
+        return jax.vmap(lambda c, i: tight.run(tf, c, i)[1].llh)(carry0, inputs)
+
+    llh = run(probs[0].tf, carry0, inputs)
+    err = np.stack([np.asarray(metrics.enu_errors(llh[i], p.truth.llh))
+                    for i, p in enumerate(probs)])
+    tmp = cache.with_suffix(".tmp.npz")
+    np.savez(tmp, key=key, err_enu_m=err)
+    tmp.replace(cache)
+    return err

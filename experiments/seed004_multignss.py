@@ -21,22 +21,22 @@ Run ``python experiments/seed004_multignss.py [--quick] [--out DIR]``.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import time
 import warnings
 from pathlib import Path
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 import xarray as xr
-from common import comparison_table, fmt, markdown_table, parse_args, write_report
+from common import (
+    comparison_table,
+    fmt,
+    full_availability_errors,
+    markdown_table,
+    parse_args,
+    write_report,
+)
 
-import jaxnav
-from jaxnav.filter import tight
-from jaxnav.study import config, metrics, report
+from jaxnav.study import config, report
 from jaxnav.study.factory import SimFactory
 from jaxnav.study.sweep import run_sweep
 
@@ -100,35 +100,6 @@ def study_dict(label: str, size: dict) -> dict:
         "scenario": {**DRIVE, "duration_s": size["duration_s"], "slots": SLOTS,
                      **SCENARIOS[label]},
     }
-
-
-# --- Shared helpers (kept here: experiments/common.py is not ours to extend) ----------------
-def full_availability_errors(factory, cfg, mode, system, seeds, cache: Path) -> np.ndarray:
-    """ENU error [R, T, 3] (estimate - truth, m) of whole runs with every satellite, one
-    vmapped ``tight.run`` over the realisations; cached in ``cache`` (.npz) under a key of
-    everything that determines it."""
-    key = hashlib.sha256(json.dumps(
-        [factory.fingerprint(), mode, system, list(map(int, seeds)), jaxnav.__version__],
-        sort_keys=True).encode()).hexdigest()
-    if cache.exists():
-        with np.load(cache) as z:
-            if str(z["key"]) == key:
-                return z["err_enu_m"]
-    probs = [factory.build(cfg, mode, system, int(s)) for s in seeds]
-    carry0 = jax.tree.map(lambda *a: jnp.stack(a), *[p.carry0 for p in probs])
-    inputs = jax.tree.map(lambda *a: jnp.stack(a), *[p.inputs for p in probs])
-
-    @eqx.filter_jit
-    def run(tf, carry0, inputs):
-        return jax.vmap(lambda c, i: tight.run(tf, c, i)[1].llh)(carry0, inputs)
-
-    llh = run(probs[0].tf, carry0, inputs)
-    err = np.stack([np.asarray(metrics.enu_errors(llh[i], p.truth.llh))
-                    for i, p in enumerate(probs)])
-    tmp = cache.with_suffix(".tmp.npz")
-    np.savez(tmp, key=key, err_enu_m=err)
-    tmp.replace(cache)
-    return err
 
 
 def rms_after(err: np.ndarray, dt: float, exclude_s: float) -> np.ndarray:

@@ -218,7 +218,8 @@ def _clock_jump(cfg: ppp.PppConfig, layout: StateLayout, gnss_est, P, rows: ppp.
 
 def _update_with_postfit(cfg: ppp.PppConfig, P, rows: ppp.Rows, mask):
     """Masked update; if the worst normalised post-fit residual exceeds the threshold, drop it
-    (its whole satellite for a code row) and update again from the same prior."""
+    (for a code row: every code row of its satellite) and update again from the same prior.
+    The satellite's phase stays: dropping it would restart a converged ambiguity."""
     n = P.shape[0]
     x0 = jnp.zeros(n)
     first = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, mask, cfg.gate_chi2)
@@ -226,9 +227,10 @@ def _update_with_postfit(cfg: ppp.PppConfig, P, rows: ppp.Rows, mask):
     score = jnp.where(first.used, jnp.abs(resid), 0.0)
     worst = jnp.argmax(score)
     reject = score[worst] > cfg.postfit_sigma
-    whole_sat = rows.kind[worst] == ppp.KIND_CODE
+    is_code = rows.kind == ppp.KIND_CODE
     drop = jnp.where(
-        whole_sat, rows.slot == rows.slot[worst], jnp.arange(rows.dz.shape[0]) == worst
+        is_code[worst], is_code & (rows.slot == rows.slot[worst]),
+        jnp.arange(rows.dz.shape[0]) == worst,
     )
     second = ekf.masked_update(
         x0, P, rows.dz, rows.H, rows.R, first.used & ~(drop & reject), cfg.gate_chi2
