@@ -117,3 +117,16 @@ def full_availability_errors(factory, cfg, mode, system, seeds, cache: Path) -> 
     np.savez(tmp, key=key, err_enu_m=err)
     tmp.replace(cache)
     return err
+
+
+def run_time_lines(timings: dict, stats: dict) -> list[str]:
+    """Markdown bullets of a script's wall times ({step: s}) and its sweeps' engine statistics
+    ({label: ``SweepResult.stats``})."""
+    lines = [f"- {k}: {v:.0f} s" for k, v in timings.items()]
+    for label, st in stats.items():
+        lines.append(
+            f"- sweep {label}: {st['scenarios']} scenarios, compile "
+            f"{st['compile_full_s'] + st['compile_eval_s']:.0f} s, full runs "
+            f"{st['full_run_s']:.0f} s, evaluation {st['eval_s']:.0f} s, chunks computed "
+            f"{st['chunks_computed']} / reused {st['chunks_reused']}")
+    return lines

@@ -41,6 +41,7 @@ from common import (
     markdown_table,
     parse_args,
     ratio,
+    run_time_lines,
     write_report,
 )
 
@@ -527,13 +528,7 @@ def build_sections(quick, size, modes, datasets, ok, stats, timings, t51, t51_te
         f"{n_r['urban'] * n_pl['urban']} ('urban') outages. The seed had 5 + 10 "
         "outages (one realisation each).",
     ])
-    run = [f"- {k}: {v:.0f} s" for k, v in timings.items()]
-    for label, st in stats.items():
-        run.append(
-            f"- sweep {label}: {st['scenarios']} scenarios, compile "
-            f"{st['compile_full_s'] + st['compile_eval_s']:.0f} s, full runs "
-            f"{st['full_run_s']:.0f} s, evaluation {st['eval_s']:.0f} s, chunks computed "
-            f"{st['chunks_computed']} / reused {st['chunks_reused']}")
+    run = run_time_lines(timings, stats)
     cmp_rows = list(t51["rows"])
     for label, cells, seed_of in (("5.2", cells52, lambda s: seed_t52_average(s)),
                                   ("5.3", cells53, lambda s: SEED_T53[s])):

@@ -16,8 +16,8 @@ added to the factory by ``seed001_ic_ppp_ins.PppAloneFactory``):
   without the outages, the drift in outage 2 and the re-convergence to 20 cm.
 
 Part B (S002 ch. 4): SF-PPP (``sf_code``) loosely coupled with a consumer MEMS IMU
-(``lsm6dsl``) through ``filter/cascade.py`` (``lc_ins15_nhc``: NHC at every epoch; the factory
-system has no ZUPT, see the report) on a suburban drive, with and without a 3-min complete
+(``lsm6dsl``) through ``filter/cascade.py`` (``lc_ins15_nhc_zupt``: NHC at every epoch, ZUPT and
+ZARU at detected standstills) on a suburban drive, with and without a 3-min complete
 outage (the underground parking of trajectory 2): Tables 4.4-4.6.
 """
 
@@ -317,22 +317,24 @@ def main(argv=None) -> int:
     return 0
 
 
-LC_SYSTEM = "lc_ins15_nhc"
+LC_SYSTEM = "lc_ins15_nhc_zupt"
 
 
 def lc_part(scn, quick, excl_ch5, out, figs) -> str:
-    """Tables 4.4-4.6: SF-PPP (sf_code) -> LC 15-state INS (lsm6dsl) with NHC."""
+    """Tables 4.4-4.6: SF-PPP (sf_code) -> LC 15-state INS (lsm6dsl) with NHC and ZUPT."""
     fac = PppAloneFactory(scn)
     if LC_SYSTEM not in fac.systems:
         return ("Not run: waits for the LC cascade (`jaxnav/filter/cascade.py` and the "
                 f"factory system `{LC_SYSTEM}` are not in this tree).")
     excl = 60.0 if quick else 300.0  # S002 ch.4: after the first 5 min
-    scfg = study_dict(f"{NAME}-lc", scn, ["sf_code"], [LC_SYSTEM, "lc_ins15", PPP_ALONE],
+    scfg = study_dict(f"{NAME}-lc", scn, ["sf_code"],
+                      [LC_SYSTEM, "lc_ins15_nhc", "lc_ins15", PPP_ALONE],
                       [10], [0], quick, conv_s=60, spacing_s=60, recovery_s=10, realizations=1)
     T = fac.timeline(scfg).n_epochs
     park = (int(T * 0.6), 40 if quick else 180, 0)  # a 3-min complete outage (parking)
     rows, cmp_rows, curves = [], [], {}
-    systems = [LC_SYSTEM, "lc_ins15", PPP_ALONE] if not quick else [LC_SYSTEM, PPP_ALONE]
+    systems = ([LC_SYSTEM, "lc_ins15_nhc", "lc_ins15", PPP_ALONE] if not quick
+               else [LC_SYSTEM, PPP_ALONE])
     for s in systems:
         for case, wins in (("open sky", ()), ("3-min outage", (park,))):
             e2, pe, sol, t, _ = run_with(fac, scfg, "sf_code", s, 0, wins)
@@ -359,8 +361,8 @@ def lc_part(scn, quick, excl_ch5, out, figs) -> str:
         f"Suburban drive, GPS only, SF code PPP (`sf_code`: C1 minus the broadcast ionosphere; "
         "S002 ch.4 also used L1 phase, which our SF mode does not), LSM6DSL-class IMU at "
         f"100 Hz, loosely coupled through `filter/cascade.py` ({LC_SYSTEM}: NHC sigma 1 m/s at "
-        "every epoch; `lc_ins15`: no NHC). ZUPT: the factory's LC systems do not enable it "
-        "(`loose.LooseConfig.use_zupt` is False there), so ZUPT is NOT exercised here. A "
+        "every epoch and ZUPT + ZARU at standstills found by the IMU variance detector; "
+        "`lc_ins15_nhc`: NHC only; `lc_ins15`: neither). A "
         f"complete outage of {park[1]} s from t = {park[0]} s stands for the underground "
         f"parking. Statistics after {excl:g} s (S002: after 5 min), in m.",
         "",

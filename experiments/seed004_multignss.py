@@ -33,6 +33,7 @@ from common import (
     full_availability_errors,
     markdown_table,
     parse_args,
+    run_time_lines,
     write_report,
 )
 
@@ -316,13 +317,7 @@ def build_sections(quick, size, labels, ds, errs, dt, stats, timings, figs):
         f"noise seeds in every scenario; each outage cell pools {size['realizations'] * n_pl} "
         "outages.",
     ])
-    run = [f"- {k}: {v:.0f} s" for k, v in timings.items()]
-    for lab, st in stats.items():
-        run.append(
-            f"- sweep {lab}: {st['scenarios']} scenarios, compile "
-            f"{st['compile_full_s'] + st['compile_eval_s']:.0f} s, full runs "
-            f"{st['full_run_s']:.0f} s, evaluation {st['eval_s']:.0f} s, chunks computed "
-            f"{st['chunks_computed']} / reused {st['chunks_reused']}")
+    run = run_time_lines(timings, stats)
     if quick:
         discussion = "(--quick: no discussion; see the full report.)"
     elif DISCUSSION_PATH.exists():

@@ -205,3 +205,34 @@ def test_tight_nhc_update_off_by_default_and_reduces_lateral_velocity(factory):
           f"{az_rms(o_off):.3f} -> {az_rms(o_on):.3f} deg")
     assert s_on < s_off
     assert az_rms(o_on) <= 1.1 * az_rms(o_off)
+
+
+def test_lc_zupt_system_detects_standstills_and_holds_the_velocity_in_an_outage(factory):
+    """``lc_ins15_nhc_zupt``: the IMU variance detector fires during the 60-s standstill and not
+    while driving; ZARU is applied there; ZUPT replaces the missing GNSS velocity in a complete
+    outage at rest (S002 4.2), where it keeps the velocity error far below the plain LC's."""
+    rest_out = ot.Outage(20, 35, 0)  # inside the standstill (epochs 1..60)
+    res = {}
+    for system in ("lc_ins15_nhc_zupt", "lc_ins15"):
+        prob = factory.build(None, MODE, system, 3)
+        keep = ot.keep_mask(prob.elevation, prob.available, rest_out)
+        inp = prob.inputs._replace(gnss=prob.inputs.gnss._replace(keep=prob.inputs.gnss.keep
+                                                                   & keep))
+        _, out = jax.jit(cascade.run)(prob.tf, prob.carry0, inp)
+        v_err = np.linalg.norm(np.asarray(out.lc.vel_enu) - np.asarray(prob.truth.vel_enu), axis=1)
+        res[system] = (out, v_err)
+    out, v_err = res["lc_ins15_nhc_zupt"]
+    speed = np.hypot(*np.asarray(factory.geo.truth_ep.vel_enu[1:, :2]).T)
+    static = np.asarray(out.lc.static)
+    rest, moving = speed < 0.01, speed > 2.0
+    w = slice(rest_out.start + 5, rest_out.start + rest_out.length)
+    zupt = np.asarray(out.lc.applied.zupt)
+    print(f"\ndetector: static at {static[rest].mean():.0%} of rest epochs, "
+          f"{static[moving].mean():.1%} of moving ones; ZUPT in the outage {zupt[w].mean():.0%}; "
+          f"max velocity error in the outage: ZUPT {v_err[w].max() * 100:.2f} cm/s, plain LC "
+          f"{res['lc_ins15'][1][w].max() * 100:.2f} cm/s")
+    assert static[rest][10:].mean() > 0.8  # the detector adapts its reference in a few epochs
+    assert static[moving].mean() < 0.02
+    assert np.asarray(out.lc.applied.zaru)[rest][10:].mean() > 0.8
+    assert zupt[w].mean() > 0.8 and not zupt[moving].any()
+    assert v_err[w].max() < 0.5 * res["lc_ins15"][1][w].max()

@@ -27,8 +27,9 @@ coupled ``lc_ins15`` / ``lc_ins21`` (``filter.cascade``: a GNSS-only constant-ve
 filter of the same mode whose position / velocity fix, valid with >= 4 satellites used, aids a
 15 / 21-state INS). A ``_nhc`` suffix (``lc_ins15_nhc``, ``lc_ins21_nhc``) adds the
 non-holonomic constraint (lateral and vertical body velocity 0, sigma 1 m/s, S003) to the LC
-filter at every epoch. The engine asks ``ops_for(mode, system)`` for the filter contract
-(``cascade_ops`` for ``lc_*``).
+filter at every epoch; ``lc_ins15_nhc_zupt`` also applies ZUPT and ZARU at standstills found by
+the IMU variance detector (S002 ch. 4). The engine asks ``ops_for(mode, system)`` for the
+filter contract (``cascade_ops`` for ``lc_*``).
 """
 
 from __future__ import annotations
@@ -48,12 +49,14 @@ from jaxnav.sim import constellation, observations, scenario, sensors
 from jaxnav.study import metrics
 from jaxnav.study.sweep import Problem, Timeline, tight_ops
 
-#: Loosely coupled systems (``filter.cascade``): INS layout and whether NHC rows are used.
+#: Loosely coupled systems (``filter.cascade``): INS layout, NHC rows, ZUPT / ZARU at detected
+#: standstills (``loose.LooseConfig.use_zupt``: the IMU variance detector, S002 ch. 4).
 LC_SYSTEMS = {
-    "lc_ins15": (INS15, False),
-    "lc_ins21": (INS21, False),
-    "lc_ins15_nhc": (INS15, True),
-    "lc_ins21_nhc": (INS21, True),
+    "lc_ins15": (INS15, False, False),
+    "lc_ins21": (INS21, False, False),
+    "lc_ins15_nhc": (INS15, True, False),
+    "lc_ins21_nhc": (INS21, True, False),
+    "lc_ins15_nhc_zupt": (INS15, True, True),
 }
 #: Tightly coupled full-IMU systems with the NHC update (``TightFilter.nhc_sigma_m_s``).
 TC_NHC_SYSTEMS = ("ins15_nhc", "ins21_nhc")
@@ -200,8 +203,9 @@ class SimFactory:
             iono_model_residual_fraction=self.iono_model_fraction,
         )
         if system_name in LC_SYSTEMS:
+            _, nhc, zupt = LC_SYSTEMS[system_name]
             lcfg = loose.LooseConfig(
-                use_nhc=LC_SYSTEMS[system_name][1], nhc_sigma_m_s=NHC_SIGMA_M_S
+                use_nhc=nhc, nhc_sigma_m_s=NHC_SIGMA_M_S, use_zupt=zupt, use_zaru=zupt
             )
             lf = loose.LooseFilter(system, lcfg, 1.0 / rate, cfg.epoch_interval_s)
             return cascade.make_filter(pcfg, geo.slots, lf)
