@@ -676,3 +676,21 @@ def test_event_placement_centres_every_duration_on_the_event():
     np.testing.assert_array_equal(centre[0], centre[1])
     turn = plan.starts[:, 1]
     assert np.all(turn >= 150) and np.all(turn + plan.lengths[:, 1] <= 270)
+
+
+def test_resume_refuses_chunks_of_other_jaxnav_code(main_run, tmp_path):
+    """The config hash includes a hash of jaxnav's source files: a sweep started by other code
+    is never resumed into the same dataset (the study itself unchanged)."""
+    import shutil
+
+    fresh, cfg, _, _ = main_run
+    out = tmp_path / "sweep"
+    shutil.copytree(Path(fresh.path).parent, out)
+    manifest_path = out / sw.MANIFEST_FILE
+    manifest = json.loads(manifest_path.read_text())
+    assert manifest["jaxnav_source"] == sw.source_hash() and len(sw.source_hash()) == 16
+    manifest["jaxnav_source"] = "0" * 16
+    manifest["config_hash"] = "f" * 64
+    manifest_path.write_text(json.dumps(manifest))
+    with pytest.raises(FileExistsError, match="other jaxnav code"):
+        sw.run_sweep(cfg, ToyFactory(), out, resume=True, progress=False)

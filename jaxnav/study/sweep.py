@@ -48,6 +48,7 @@ Documented choices:
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import os
 import time
@@ -569,6 +570,15 @@ class _Store:
                     f"study they belong to: use another directory or overwrite=True"
                 )
             old = json.loads(self.manifest_path.read_text())
+            new_src = self.manifest.get("jaxnav_source")
+            if old.get("config_hash") != self.hash and old.get("config") == self.manifest.get(
+                "config"
+            ) and old.get("jaxnav_source") != new_src:
+                raise FileExistsError(
+                    f"{self.dir} holds this study computed by other jaxnav code (source hash "
+                    f"{str(old.get('jaxnav_source'))[:12]}, now {str(new_src)[:12]}); resuming "
+                    f"would mix results of two codes: use another directory or overwrite=True"
+                )
             if old.get("config_hash") != self.hash:
                 raise FileExistsError(
                     f"{self.dir} holds a sweep of a different study (config hash "
@@ -784,6 +794,18 @@ def _devices(devices) -> list:
     return list(jax.local_devices() if devices is None else devices)
 
 
+@functools.cache
+def source_hash() -> str:
+    """SHA-256 (16 hex digits) of jaxnav's own source files: part of a sweep's config hash, so
+    a resumed sweep never mixes chunks computed by two versions of the code."""
+    root = Path(jaxnav.__file__).parent
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def run_sweep(
     cfg: StudyConfig,
     factory,
@@ -812,11 +834,12 @@ def run_sweep(
     plan = make_plan(cfg, timeline)
     devs = _devices(devices)
     mesh = Mesh(np.array(devs), ("batch",))
-    config_hash = cfg.hash(f"{fingerprint}\njaxnav {jaxnav.__version__}")
+    config_hash = cfg.hash(f"{fingerprint}\njaxnav {jaxnav.__version__} {source_hash()}")
     groups = [(m, s) for m in cfg.modes for s in cfg.systems]
     manifest = {
         "config_hash": config_hash, "config": cfg.to_dict(), "fingerprint": fingerprint,
-        "jaxnav_version": jaxnav.__version__, "groups": groups, "chunk_size": cfg.chunk_size,
+        "jaxnav_version": jaxnav.__version__, "jaxnav_source": source_hash(),
+        "groups": groups, "chunk_size": cfg.chunk_size,
         "chunks_per_group": plan.n_chunks, "scenarios_per_group": plan.n_per_group,
         "n_devices": len(devs),
     }
