@@ -66,6 +66,7 @@ def _matched_filter(factory: SimFactory, mode: str) -> tight.TightFilter:
         product_sigma_m=0.0,
         iono_model_residual_fraction=0.0,
         iono_model_residual_floor_m=1e-3,
+        iono_sigma_m_sqrt_h=0.03,  # the simulated ionosphere here is 0: keep the RW small
     )
     return eqx.tree_at(lambda t: t.cfg, tf, cfg)
 
