@@ -68,6 +68,7 @@ from jax.sharding import PartitionSpec as Spec
 from tqdm.auto import tqdm
 
 import jaxnav
+from jaxnav import geodesy
 from jaxnav.sim.constellation import DEFAULT_ELEVATION_MASK_RAD
 from jaxnav.sim.trajectory import Event
 from jaxnav.study import metrics as mt
@@ -517,6 +518,44 @@ def brute_force(
     err = mt.enu_errors(est.llh, problem.truth.llh)
     err = jnp.where((jnp.arange(T) < n_valid)[:, None], err, jnp.nan)
     return m, err
+
+
+class SingleRun(NamedTuple):
+    """One scenario, every epoch (``single_run``). Epoch k is drive epoch k + 1 (epoch 0 only
+    initialises the filter), at ``time_s``."""
+
+    time_s: np.ndarray  # [T] s since the drive start
+    keep: np.ndarray  # [T, S] bool: satellites the filter was allowed to use
+    estimate: mt.Track  # [T] the filter's navigation solution
+    error_enu_m: np.ndarray  # [T, 3] estimate - truth, east / north / up
+    sigma_enu_m: np.ndarray  # [T, 3] the filter's 1-sigma of the same, from P
+    output: Any  # the filter's raw per-epoch output (``ops.run``)
+
+
+def single_run(problem: Problem, ops: FilterOps, outage: ot.Outage | None = None, *,
+               epoch_dt_s: float, policy: str = ot.DEFAULT_POLICY, key=None) -> SingleRun:
+    """Run one problem over the whole drive with an optional outage mask and return the errors
+    and the filter's own sigmas in metres: sigma_N = sqrt(P_lat) (R_M + h),
+    sigma_E = sqrt(P_lon) (R_N + h) cos(lat), sigma_U = sqrt(P_h)."""
+    mask = jnp.ones_like(problem.available)
+    if outage is not None:
+        mask = ot.keep_mask(
+            problem.elevation, problem.available, outage, key, policy=policy,
+            azimuth=problem.azimuth, elevation_mask_rad=problem.elevation_mask_rad,
+        )
+    keep = ops.get_keep(problem.inputs) & mask
+    _, out = jax.jit(ops.run)(problem.tf, problem.carry0, ops.with_keep(problem.inputs, keep))
+    est, P_nav = ops.readout(out)
+    err = np.asarray(mt.enu_errors(est.llh, problem.truth.llh))
+    var_llh = np.asarray(jnp.diagonal(P_nav, axis1=-2, axis2=-1)[..., :3])
+    scale = np.asarray(jax.vmap(geodesy.metres_per_radian)(est.llh))  # north, east, up
+    sd_neu = np.sqrt(np.maximum(var_llh, 0.0)) * scale
+    T = err.shape[0]
+    return SingleRun(
+        time_s=epoch_dt_s * np.arange(1, T + 1), keep=np.asarray(keep),
+        estimate=jax.tree.map(np.asarray, est), error_enu_m=err,
+        sigma_enu_m=sd_neu[:, [1, 0, 2]], output=out,
+    )
 
 
 # ----------------------------------------------------------------------------------------------
