@@ -32,7 +32,6 @@ import sys
 import time
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import matplotlib
@@ -41,9 +40,8 @@ import xarray as xr
 
 import jaxnav  # noqa: F401  (float64 and single-threaded XLA:CPU, before any computation)
 from jaxnav import geodesy
-from jaxnav.filter import tight
 from jaxnav.sim.trajectory import Event
-from jaxnav.study import config, metrics, outages, report, sweep
+from jaxnav.study import config, outages, report, sweep
 from jaxnav.study.factory import SimFactory
 
 IN_JUPYTER = "ipykernel" in sys.modules
@@ -321,28 +319,22 @@ print(interpretation)
 # ## 6. One run up close
 #
 # The sweep only keeps metrics. To look inside one scenario, build its problem with the
-# factory, withhold the satellites with an outage mask and run the filter over the whole drive:
-# `tight.run` is a `lax.scan` over the epochs returning one `EpochOutput` per epoch, whose
-# `P_nav` gives the filter's own position uncertainty. The maximum error in the window should
-# match the sweep's number for the same cell, although the sweep ran only the window from a
-# checkpoint.
+# factory and hand it to `sweep.single_run` with an outage: it withholds the satellites, runs
+# the filter over the whole drive (a `lax.scan` over the epochs) and returns the errors and the
+# filter's own 1-sigma in metres, epoch by epoch (epoch k is drive time `run.time_s[k]`; epoch 0
+# of the drive only initialises the filter). The maximum error in the window should match the
+# sweep's number for the same cell, although the sweep ran only the window from a checkpoint.
 
 # %%
 seed = cfg.seed
 p = plan.placement_event.index("turn") if "turn" in plan.placement_event else 0
 prob = factory.build(cfg, mode, "riss", seed)
 outage = outages.Outage(int(plan.starts[d_long, p]), int(plan.lengths[d_long, p]), 0)
-keep = outages.keep_mask(prob.elevation, prob.available, outage)
-inputs = prob.inputs._replace(keep=prob.inputs.keep & keep)
-_, out = eqx.filter_jit(tight.run)(prob.tf, prob.carry0, inputs)
-err = np.asarray(metrics.enu_errors(out.llh, prob.truth.llh))
-err_2d = np.hypot(err[:, 0], err[:, 1])
-pos = prob.tf.layout.sl("pos")  # (d_lat, d_lon, d_h) [rad, rad, m]
-scale = np.asarray(jax.vmap(geodesy.metres_per_radian)(out.llh))  # -> north, east, up metres
-var_ne = np.diagonal(np.asarray(out.P_nav)[:, pos, pos], axis1=1, axis2=2)[:, :2] \
-    * scale[:, :2] ** 2
-sigma_2d = np.sqrt(var_ne.sum(axis=1))
-t = time_s[1:]
+run = sweep.single_run(prob, factory.ops_for(mode, "riss"), outage,
+                       epoch_dt_s=factory.cfg.epoch_interval_s)
+err_2d = np.hypot(run.error_enu_m[:, 0], run.error_enu_m[:, 1])
+sigma_2d = np.hypot(run.sigma_enu_m[:, 0], run.sigma_enu_m[:, 1])
+t = run.time_s
 a, b = outage.start, outage.start + outage.length
 ours = float(err_2d[a:b].max())
 theirs = float(ds.max_2d_m.sel(mode=mode, system="riss", realization=seed,
@@ -376,7 +368,8 @@ REPORT = [
     ("Tables", table_md),
     ("Interpretation (computed)", interpretation),
     ("Single run", f"{mode} / riss, seed {seed}, placement {p}: maximum 2D error in the "
-     f"outage {ours:.3f} m from a whole-drive `tight.run`, {theirs:.3f} m from the sweep."),
+     f"outage {ours:.3f} m from a whole-drive `sweep.single_run`, {theirs:.3f} m from the "
+     "sweep."),
     ("Figures", "\n".join(f"![{n}]({n})" for n in FIGS)),
     ("Run", f"{st['scenarios']} scenarios, sweep {t_sweep:.0f} s, notebook {wall:.0f} s"
      f"{' (--quick: tiny study, numbers not meaningful)' if args.quick else ''}."),

@@ -80,11 +80,11 @@ def test_report_table_matches_the_dataset(quick_run):
 
 
 def test_single_run_reproduces_the_sweep_cell(quick_run):
-    """The whole-drive tight.run with the outage mask gives the sweep's number for that cell,
+    """The whole-drive sweep.single_run with the outage mask gives the sweep's number for that cell,
     although the sweep ran only the outage window from a checkpoint."""
     _, text, _ = quick_run
-    m = re.search(r"outage ([0-9.]+) m from a whole-drive `tight.run`, ([0-9.]+) m from the sweep",
-                  text)
+    m = re.search(r"outage ([0-9.]+) m from a whole-drive `sweep.single_run`, ([0-9.]+) m from "
+                  r"the\s+sweep", text)
     assert m, "single-run line missing"
     single, cell = float(m.group(1)), float(m.group(2))
     assert math.isfinite(single) and single > 0.0

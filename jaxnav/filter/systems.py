@@ -56,6 +56,18 @@ class RissSystem(eqx.Module):
     the vertical gyro's angle random walk drives the azimuth, and the odometer's white noise and
     quantisation (a reading error of ``speed_noise_m_s`` every ``input_interval_s``) drive the
     along-track velocity and position. Both default to 0 (the seeds' form).
+
+    The velocity error is algebraic (``riss_errors.algebraic_velocity_dynamics``): the
+    mechanization re-derives v = v_od u(A, p) at every input, so the GNSS velocity rows and the
+    position rows see dx[vel] + M dx, with M = dv/dA (cross-track, v dA) and dv/d(odo speed)
+    (along-track). The seeds' integrated velocity state, whose only link to the heading is
+    F[vel, A] = a_od, let braking drive the azimuth the wrong way under Doppler updates
+    (a -25 deg heading error within 15 s of a 24 -> 6 m/s stop, tests/test_riss_braking.py).
+    For RISS16, M also carries the pitch error of the accelerometer-bias and a_od states (the
+    vertical velocity, hence the height), and the odometer-speed error is a scale-factor error,
+    F[odo_speed, odo_speed] = ln(v_k / v_{k-1}) / dt, instead of S000's integral of the a_od
+    error: at constant speed the speed error cannot drift, so slowly varying code errors of a
+    2-3 satellite partial outage no longer pull the speed (tests/test_tight.py).
     """
 
     layout: StateLayout = eqx.field(static=True, default=RISS16)
@@ -108,15 +120,26 @@ class RissSystem(eqx.Module):
         return nav, mean
 
     def dynamics(self, nav, mean_inputs, sensors):
-        """Seed F, G, Qc plus the white-noise columns of the class docstring.
+        """Seed F, G, Qc recast with the algebraic velocity error, plus white-noise columns.
 
-        Azimuth: PSD ARW^2. Odometer reading noise sigma_s every dt_in: along-track position
-        PSD sigma_s^2 dt_in (a random walk of the integrated speed error) and, since the RISS
-        velocity is re-read every input, along-track velocity PSD sigma_s^2 / dt_epoch (its
-        variance grows by sigma_s^2 per epoch until Doppler/position updates pull it back).
+        Azimuth: PSD ARW^2. Odometer reading noise sigma_s every dt_in and the pitch noise it
+        causes (below), both white from one reading to the next:
+        - RISS16: the ``vel`` states are that reading error, a GM of correlation time dt_in
+          with steady sigma (sigma_s along track, v sigma_p up); the position integrates it
+          through F[pos, vel] (PSD 2 sigma^2 dt_in, the white-noise limit s^2 dt_in within 2x);
+        - RISS9 (velocity = the seeds' integrated along-track error): along-track position PSD
+          sigma_s^2 dt_in (a random walk of the integrated speed error) and velocity PSD
+          sigma_s^2 / dt_epoch (variance grows by sigma_s^2 per epoch until Doppler/position
+          updates pull it back); the same for the vertical pitch noise.
         """
         fn = riss_errors.riss16_dynamics if self.layout == RISS16 else riss_errors.riss9_dynamics
         F, G, Qc = fn(nav, mean_inputs, self.params, sensors)
+        dt_in, dt_ep = self.input_interval_s, self.epoch_interval_s
+        read_beta = 1.0 / dt_in
+        scale_rate = 0.0
+        if self.layout.has("odo_speed"):
+            scale_rate = riss_errors.odometer_scale_rate(nav, mean_inputs, dt_ep, sensors)
+        F = riss_errors.algebraic_velocity_dynamics(F, self.layout, nav, read_beta, scale_rate)
         forward = jnp.stack(
             [
                 jnp.sin(nav.azimuth) * jnp.cos(nav.pitch),
@@ -136,18 +159,28 @@ class RissSystem(eqx.Module):
         # The pitch is re-derived every input from (f_y - a_od) / g, and a_od differences two
         # noisy speed readings: pitch noise sqrt(2) sigma_s / (dt_in g) tilts the velocity,
         # v_u error = v sigma_p (white, like the speed error itself).
-        dt_in, dt_ep = self.input_interval_s, self.epoch_interval_s
         s2 = self.speed_noise_m_s**2
         g = geodesy.normal_gravity(nav.llh[0], nav.llh[2])
         sigma_pitch = jnp.sqrt(2.0) * self.speed_noise_m_s / (dt_in * g)
         vu2 = (jnp.linalg.norm(nav.vel_enu) * sigma_pitch) ** 2
-        q_extra = jnp.stack(
-            [self.gyro_arw_rad_sqrt_s**2, s2 * dt_in, s2 / dt_ep, vu2 * dt_in, vu2 / dt_ep]
-        )
+        if self.layout.has("odo_speed"):
+            zero = jnp.zeros(())
+            gm = 2.0 * read_beta  # GM PSD 2 beta sigma^2
+            q_extra = jnp.stack([self.gyro_arw_rad_sqrt_s**2, zero, gm * s2, zero, gm * vu2])
+        else:
+            q_extra = jnp.stack(
+                [self.gyro_arw_rad_sqrt_s**2, s2 * dt_in, s2 / dt_ep, vu2 * dt_in, vu2 / dt_ep]
+            )
         G = jnp.concatenate([G, G_extra], axis=1)
         m = Qc.shape[0]
         Qc = jnp.zeros((m + 5, m + 5)).at[:m, :m].set(Qc).at[m:, m:].set(jnp.diag(q_extra))
         return F, G, Qc
+
+    def _velocity_jacobian(self, nav: riss.RissState, layout_full: StateLayout):
+        """d(velocity)/d(error state) over ``layout_full``: the vel states plus M (class doc)."""
+        M = riss_errors.mechanized_velocity_jacobian(self.layout, nav)
+        J = jnp.zeros((3, layout_full.size)).at[:, : self.layout.size].set(M)
+        return J.at[:, layout_full.sl("vel")].add(jnp.eye(3))
 
     def C_b_l(self, nav: riss.RissState):
         return attitude.dcm_from_euler(jnp.stack([nav.roll, nav.pitch, nav.azimuth]))
@@ -170,11 +203,15 @@ class RissSystem(eqx.Module):
         for name, dC in zip(("roll", "pitch", "azimuth"), partials, strict=True):
             if layout_full.has(name):
                 J_pos = J_pos.at[:, layout_full.i(name)].set(C_l_e @ (dC @ self.lever_b))
-        J_vel = jnp.zeros((3, n)).at[:, layout_full.sl("vel")].set(C_l_e)
+        J_vel = C_l_e @ self._velocity_jacobian(nav, layout_full)
         return Receiver(geodesy.llh_to_ecef(llh_ant), C_l_e @ nav.vel_enu, llh_ant, J_pos, J_vel)
 
     def feedback(self, nav, sensors, dx, layout_full: StateLayout):
-        return riss_errors.riss_feedback(nav, dx, layout_full, sensors)
+        """``riss_errors.riss_feedback``; the output velocity also drops the M dx part of its
+        error (the next input re-derives it from the corrected azimuth and speed anyway)."""
+        new_nav, new_sensors = riss_errors.riss_feedback(nav, dx, layout_full, sensors)
+        M = self._velocity_jacobian(nav, layout_full).at[:, layout_full.sl("vel")].set(0.0)
+        return new_nav._replace(vel_enu=new_nav.vel_enu - M @ dx), new_sensors
 
     def initial_std(self, nav: riss.RissState, sig: NavSigmas):
         p = self.params

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from jaxnav.attitude import wrap_angle
 from jaxnav.filter.states import RISS9, RISS16, StateLayout
-from jaxnav.geodesy import C_LIGHT, OMEGA_E, radii
+from jaxnav.geodesy import C_LIGHT, OMEGA_E, normal_gravity, radii
 from jaxnav.ins.riss import (
     RissInput,
     RissSensorErrors,
@@ -258,6 +258,105 @@ def riss16_dynamics(
     return F, G, Qc
 
 
+def mechanized_velocity_jacobian(layout: StateLayout, state: RissState):
+    """M (3 x n): the RISS velocity error the azimuth, odometer and pitch-source states imply.
+
+    The RISS mechanization does not integrate its velocity: every input re-derives it as
+    v = v_od u(A, p), u = (sinA cosp, cosA cosp, sinp) (S000 eqs 4.4-4.6), with the pitch itself
+    re-derived as p = asin((f_y - a_od) / g) (S000 eq 4.2). Its error is therefore algebraic,
+    dv = M dx:
+    - dv/dA = v_od du/dA = (vn, -ve, 0), the cross-track error v dA of a heading error;
+    - dv/d(odo speed) = u, when the layout has ``odo_speed``;
+    - the pitch error dp = -(dx[accel_bias_y] + dx[odo_accel]) / (g cosp) (the used f_y is wrong
+      by -dx[accel_bias_y], the used a_od by +dx[odo_accel]) tilts the velocity by
+      v_od du/dp = v_od (-sinA sinp, -cosA sinp, cosp), when the layout has ``accel_bias_y``
+      (RISS16). Without it the vertical velocity (and so the height) of the mechanization drifts
+      with the accelerometer bias while the model keeps them unrelated.
+    The ``pitch`` state is not in M: the mechanization overwrites a pitch correction at the next
+    input, so only errors of its persistent sources (the biases) can be estimated and fed back.
+    ``state`` must be a freshly mechanized state (vel_enu = v_od u).
+    """
+    M = jnp.zeros((3, layout.size))
+    ve, vn = state.vel_enu[0], state.vel_enu[1]
+    M = M.at[:, layout.i("azimuth")].set(jnp.stack([vn, -ve, jnp.zeros_like(ve)]))
+    sa, ca = jnp.sin(state.azimuth), jnp.cos(state.azimuth)
+    sp, cp = jnp.sin(state.pitch), jnp.cos(state.pitch)
+    if layout.has("odo_speed"):
+        M = M.at[:, layout.i("odo_speed")].set(jnp.stack([sa * cp, ca * cp, sp]))
+    if layout.has("accel_bias_y"):
+        v_od = jnp.linalg.norm(state.vel_enu)
+        g = normal_gravity(state.llh[0], state.llh[2])
+        dv_dp = v_od * jnp.stack([-sa * sp, -ca * sp, cp])
+        col = -dv_dp / (g * cp)
+        M = M.at[:, layout.i("accel_bias_y")].set(col).at[:, layout.i("odo_accel")].set(col)
+    return M
+
+
+def odometer_scale_rate(state: RissState, inp: RissInput, dt_s,
+                        sensor_errors: RissSensorErrors | None = None):
+    """F[odo_speed, odo_speed] = ln(v_k / v_{k-1}) / dt: a scale-factor speed error dk v_od.
+
+    The mechanization scales the odometer, v_od (1 - k) (``riss.correct_input``), and never
+    integrates a_od into the speed, so an unchanged scale error dk gives a speed error dk v_od
+    that follows the speed: d/dt (dk v) = (a / v) (dk v). Over one epoch that is the factor
+    v_k / v_{k-1} exactly; both speeds are floored at the 1 m/s below which the scale is not
+    updated (``riss_feedback``), which bounds the rate when starting from rest.
+    """
+    inp = correct_input(inp, sensor_errors)
+    v1 = jnp.maximum(jnp.linalg.norm(state.vel_enu), _MIN_SCALE_SPEED_M_S)
+    v0 = jnp.maximum(jnp.linalg.norm(state.vel_enu) - inp.a_od * dt_s, _MIN_SCALE_SPEED_M_S)
+    return jnp.log(v1 / v0) / dt_s
+
+
+def algebraic_velocity_dynamics(F, layout: StateLayout, state: RissState, read_beta_1_s,
+                                odo_scale_rate_1_s=0.0):
+    """Recast a seed F (``riss9_dynamics`` / ``riss16_dynamics``) so that the velocity error is
+    the algebraic dv_total = dx[vel] + M dx (``mechanized_velocity_jacobian``).
+
+    Why: the seeds linearise a velocity that is integrated (v' = a_od u + v x A', S000 eqs
+    4.17-4.29), so their velocity error only learns the heading error through F[vel, A] = a_od
+    (the derivative of v dA). The mechanization re-derives v from v_od and A at every input,
+    so after any update the true cross-track velocity error is v dA whatever the filter's
+    velocity state says. With the seed F a constant-speed drive never relates the two (their
+    correlation stays ~0), and under braking F[vel, A] = a_od < 0 builds the *opposite*
+    correlation to the true +v: a cross-track Doppler residual v dA then pushes the azimuth
+    estimate the wrong way, by about v / (v - v0) times the residual, and the heading runs away.
+
+    Here the azimuth (and, for RISS16, the odometer-speed and pitch-source) errors enter the
+    measurement and the position rows through M, and the ``vel`` states keep only what M does
+    not carry:
+    - with ``odo_speed`` (RISS16): the short-correlated odometer reading error (quantisation,
+      white noise, pitch noise), a GM of rate ``read_beta_1_s`` (one input interval). The
+      odometer speed error is a scale-factor error (the mechanization scales v_od and does not
+      integrate a_od): F[odo_speed, odo_speed] = ``odo_scale_rate_1_s``
+      (``odometer_scale_rate``) replaces S000's F(16,8) = 1, which would let an a_od error
+      (here only a pitch error, through M) move the speed by 0.35 m/s per minute at constant
+      speed, where a scale error cannot change it;
+    - without it (RISS9): the along-track speed error of the seeds, driven by the odometer
+      acceleration error and rotated with the heading (F[vel, odo_accel], F[ve, vn] = A').
+    Rows that depend on the velocity (position; the azimuth's transport-rate term) get
+    F[:, vel] M added, i.e. they see the total velocity error.
+    """
+    n = layout.size
+    vel = layout.sl("vel")
+    M = mechanized_velocity_jacobian(layout, state)
+    F_vel_cols = F[:, vel]
+    is_vel_row = (jnp.arange(n) >= vel.start) & (jnp.arange(n) < vel.stop)
+    F_new = F + jnp.where(is_vel_row[:, None], 0.0, F_vel_cols @ M)
+    rows = jnp.zeros((3, n))
+    if layout.has("odo_speed"):
+        rows = rows.at[:, vel].set(-read_beta_1_s * jnp.eye(3))
+        i = layout.i("odo_speed")
+        F_new = F_new.at[i, :].set(0.0).at[i, i].set(odo_scale_rate_1_s)
+    else:
+        az_rate = F[vel.start, vel.start + 1]  # the seed's F[ve, vn] = A' (rotation with A)
+        sa, ca = jnp.sin(state.azimuth), jnp.cos(state.azimuth)
+        sp, cp = jnp.sin(state.pitch), jnp.cos(state.pitch)
+        rows = rows.at[0, vel.start + 1].set(az_rate).at[1, vel.start].set(-az_rate)
+        rows = rows.at[:, layout.i("odo_accel")].set(jnp.stack([sa * cp, ca * cp, sp]))
+    return F_new.at[vel, :].set(rows)
+
+
 def riss_feedback(
     state: RissState, dx, layout: StateLayout, sensor_errors: RissSensorErrors | None = None
 ):
@@ -318,6 +417,9 @@ __all__ = [
     "RISS9_NOISE",
     "RISS16_NOISE",
     "RissNoiseParams",
+    "algebraic_velocity_dynamics",
+    "mechanized_velocity_jacobian",
+    "odometer_scale_rate",
     "riss9_dynamics",
     "riss16_dynamics",
     "riss_feedback",

@@ -79,11 +79,15 @@ def _antenna(truth_ep: trajectory.Truth, lever_b):
     return jax.vmap(one)(truth_ep.llh, truth_ep.vel_enu, truth_ep.q_b_l, truth_ep.w_ib_b)
 
 
-def build_geometry(cfg: ScenarioConfig) -> Geometry:
-    """Truth trajectory, antenna track and the fixed satellite slots of a drive."""
-    if cfg.drive_style == "airborne":
+def build_geometry(cfg: ScenarioConfig, profile: trajectory.Profile | None = None) -> Geometry:
+    """Truth trajectory, antenna track and the fixed satellite slots of a drive.
+
+    ``profile``: a purpose-built trajectory (``trajectory.compile_profile``) instead of the
+    seeded random drive of ``cfg.drive_style`` / ``cfg.drive_seed``.
+    """
+    if profile is None and cfg.drive_style == "airborne":
         profile = trajectory.random_airborne(cfg.drive_seed, cfg.duration_s)
-    else:
+    elif profile is None:
         profile = trajectory.random_drive(cfg.drive_seed, cfg.drive_style, cfg.duration_s)
     truth = trajectory.generate_truth(profile, cfg.imu_rate_hz, cfg.duration_s)
     truth_ep = trajectory.truth_at_epochs(truth, cfg.epoch_interval_s)
