@@ -32,6 +32,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -276,8 +277,9 @@ def save_window(win: Window, path: Path) -> None:
         pickle.dump((win.tf, host, win.outage_epochs, win.system, win.gps_slots), f)
 
 
-def worker(path: str, width: int, devices: int) -> None:
-    """Subprocess: one call of ``width`` scenarios (on ``devices`` devices), printed as JSON."""
+def worker(path: str, width: int, devices: int, min_s: float = 0.0) -> None:
+    """Subprocess: one call of ``width`` scenarios (on ``devices`` devices), printed as JSON;
+    calls repeat until ``min_s`` seconds were timed."""
     with open(path, "rb") as f:
         tf, (carry, inputs), n_out, system, slots = pickle.load(f)
     win = Window(tf, carry, inputs, n_out, system, slots)
@@ -296,7 +298,7 @@ def worker(path: str, width: int, devices: int) -> None:
         args = jax.device_put(args, NamedSharding(mesh, Spec("batch")))
     with bu.Timer() as tc:
         compiled = jax.jit(fn).lower(*args).compile()
-    t = bu.time_calls(compiled, args, 1, min_s=0.0, min_reps=3)
+    t = bu.time_calls(compiled, args, 1, min_s=min_s, min_reps=3)
     print(json.dumps({"width": width, "devices": devices, "compile_s": tc.s,
                       "call_min_s": float(t.min()), "call_median_s": float(np.median(t)),
                       "per_scenario_ms": 1e3 * float(t.min()) / width,
@@ -306,7 +308,7 @@ def worker(path: str, width: int, devices: int) -> None:
 
 
 def guarded_point(win_path: Path, width: int, devices: int = 1, timeout_s: float = 120.0,
-                  openblas_default: bool = False):
+                  openblas_default: bool = False, min_s: float = 0.0):
     """One subprocess point; ``openblas_default``: without OPENBLAS_NUM_THREADS (all cores)."""
     env = dict(os.environ)
     if openblas_default:
@@ -315,7 +317,7 @@ def guarded_point(win_path: Path, width: int, devices: int = 1, timeout_s: float
         env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "")
                             + f" --xla_force_host_platform_device_count={devices}").strip()
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(win_path),
-           "--width", str(width), "--devices", str(devices)]
+           "--width", str(width), "--devices", str(devices), "--min-s", str(min_s)]
     r = run_guarded(cmd, timeout_s, env)
     tag = (f"width {width}" + (f" on {devices} devices" if devices > 1 else "")
            + (", OpenBLAS default threads" if openblas_default else ""))
@@ -327,6 +329,31 @@ def guarded_point(win_path: Path, width: int, devices: int = 1, timeout_s: float
         print(f"  subprocess {tag}: {r['status'].upper()} "
               f"({r.get('elapsed_s', 0):.0f} s; {r.get('stderr', '')[-200:]})", flush=True)
     return r
+
+
+def processes_point(win_path: Path, width: int, n_procs: int, timeout_s: float = 240.0,
+                    min_s: float = 15.0) -> dict:
+    """``n_procs`` worker processes at once, each timing calls of ``width`` scenarios for
+    ``min_s`` s: the throughput of running the engine's chunks in one process per core.
+    Aggregate ms/scenario = slowest process's median call / (width x n_procs)."""
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(win_path),
+           "--width", str(width), "--devices", "1", "--min-s", str(min_s)]
+    with ThreadPoolExecutor(n_procs) as pool:
+        runs = list(pool.map(lambda _: run_guarded(cmd, timeout_s, dict(os.environ)),
+                             range(n_procs)))
+    if any(r["status"] != "ok" for r in runs):
+        bad = next(r for r in runs if r["status"] != "ok")
+        print(f"  {n_procs} processes x width {width}: {bad['status'].upper()}", flush=True)
+        return {"status": bad["status"]}
+    med = max(r["call_median_s"] for r in runs)
+    out = {"status": "ok", "per_process_ms": [1e3 * r["call_median_s"] / width for r in runs],
+           "aggregate_ms": 1e3 * med / (width * n_procs),
+           "rss_mb": sum(r["rss_mb"] for r in runs)}
+    print(f"  {n_procs} processes x width {width} at once: "
+          + ", ".join(f"{v:.2f}" for v in out["per_process_ms"])
+          + f" ms/scenario each (median call) -> {out['aggregate_ms']:.2f} ms/scenario aggregate",
+          flush=True)
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -439,9 +466,10 @@ def main(argv=None) -> int:
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--width", type=int, default=CHUNK, help=argparse.SUPPRESS)
     ap.add_argument("--devices", type=int, default=1, help=argparse.SUPPRESS)
+    ap.add_argument("--min-s", type=float, default=0.0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
-        worker(args.worker, args.width, args.devices)
+        worker(args.worker, args.width, args.devices, args.min_s)
         return 0
 
     t_start = time.perf_counter()
@@ -531,6 +559,21 @@ def main(argv=None) -> int:
                             f"{r['compile_s']:.1f} | {r['xla_mb']:.1f} | {r['rss_mb']:.0f} |")
                 if ndev == 1 and not obd:
                     ok.append((w, r))
+            # Both cores without shard_map: one process per core, each with its own chunks.
+            solo = guarded_point(wpath, chunk, 1, timeout_s=180.0, min_s=15.0)
+            pair = processes_point(wpath, chunk, m["cores"])
+            figures[f"processes_{m['cores']}"] = pair["status"]
+            if solo["status"] == "ok" and pair["status"] == "ok":
+                one = solo["per_scenario_median_ms"]
+                figures[f"per_scenario_ms_ins15_{m['cores']}_processes"] = round(
+                    pair["aggregate_ms"], 3)
+                figures[f"speedup_{m['cores']}_processes"] = round(one / pair["aggregate_ms"], 2)
+                rows.append(f"| ins15, 1 process alone, width {chunk} (15 s of calls) | ok | - | "
+                            f"{one:.2f} | {solo['compile_s']:.1f} | {solo['xla_mb']:.1f} | "
+                            f"{solo['rss_mb']:.0f} |")
+                rows.append(f"| ins15, {m['cores']} processes at once, width {chunk} each "
+                            f"(aggregate; x{one / pair['aggregate_ms']:.2f} vs 1 process) | ok | "
+                            f"- | {pair['aggregate_ms']:.2f} | - | - | {pair['rss_mb']:.0f} |")
         if ok:
             plot_curve(args.plots / "scaling_width.png", "Single-call vmap width (ins15)",
                        "scenarios per call",

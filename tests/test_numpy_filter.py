@@ -185,3 +185,21 @@ def test_rejects_other_configurations(case):
     with pytest.raises(ValueError, match="INS15"):
         nfm.NumpyTightFilter.from_jax(tight.TightFilter(
             ins21, tf.cfg, tf.slots, tf.imu_dt_s, tf.epoch_dt_s))
+
+
+def test_postfit_off_keeps_the_outlier(case):
+    """``postfit_sigma=None``: one update per epoch, no post-fit redo. Identical to the default
+    until the first post-fit rejection (epoch 128, the 8-m code outlier), which is then used."""
+    import dataclasses
+
+    import equinox as eqx
+
+    prob, _, out = case
+    inputs, _, ref, _, _ = out["stress"]
+    tf_off = eqx.tree_at(lambda t: t.cfg, prob.tf,
+                         dataclasses.replace(prob.tf.cfg, postfit_sigma=None))
+    _, off = _run_jax(tf_off, prob.carry0, inputs)
+    dof_off = np.asarray(off.dof)
+    np.testing.assert_array_equal(dof_off[:128], ref.dof[:128])
+    np.testing.assert_array_equal(np.asarray(off.llh)[:128], ref.llh[:128])
+    assert ref.dof[128] == 17 and dof_off[128] == 18

@@ -223,6 +223,8 @@ def _update_with_postfit(cfg: ppp.PppConfig, P, rows: ppp.Rows, mask):
     n = P.shape[0]
     x0 = jnp.zeros(n)
     first = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, mask, cfg.gate_chi2)
+    if cfg.postfit_sigma is None:  # decided at trace time: a None field has no leaves
+        return first
     resid = ekf.normalized_residuals(first.x, first.P, rows.dz, rows.H, rows.R)
     score = jnp.where(first.used, jnp.abs(resid), 0.0)
     worst = jnp.argmax(score)

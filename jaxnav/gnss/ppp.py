@@ -87,7 +87,9 @@ class PppConfig(eqx.Module):
     elevation_mask_rad: float = 0.17453292519943295  # 10 deg (S000 QC mask; S002 used 7 deg)
     prefit_code_m: float = 20.0  # S002: coarse pre-fit threshold for code
     gate_chi2: float = 25.0  # chosen: 5-sigma innovation gate (normalised by H P H^T + R)
-    postfit_sigma: float = 3.0  # S002: normalised post-fit residual threshold
+    # S002: normalised post-fit residual threshold. None: no post-fit test (one update per
+    # epoch instead of two; roofline.py measures what the second update costs).
+    postfit_sigma: float | None = 3.0
     # Process noise.
     clock_bias_psd_m2_s: float = _CLOCK_K * geodesy.C_LIGHT**2 * _CLOCK_H0 / 2.0  # S001 eq 16
     clock_drift_psd_m2_s3: float = 2.0 * _CLOCK_K * jnp.pi**2 * geodesy.C_LIGHT**2 * _CLOCK_H_M2
