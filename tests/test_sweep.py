@@ -520,6 +520,25 @@ end,385,10
 """
 
 
+def test_second_sweep_in_a_process_with_more_checkpoints(tmp_path):
+    """Two sweeps in one process whose compiled shapes agree but whose checkpoint counts differ
+    (a wider grid spacing, then a narrower one): the second must not reuse the first's full-run
+    scan, whose checkpoint buffer is too short (regression: seed000's 'urban' drive, 13
+    placements after 'suburban' 12, scored its last placement from the end-of-drive carry)."""
+    factory = ToyFactory()
+    grid = {"kind": "grid", "convergence_s": 60}
+    few = toy_config(modes=["toy_a"], realizations=1, satellites_kept=[0, "all"],
+                     placement={**grid, "spacing_s": 80})
+    many = toy_config(modes=["toy_a"], realizations=1, satellites_kept=[0, "all"],
+                      placement={**grid, "spacing_s": 40})
+    p_few, p_many = (sw.make_plan(c, factory.timeline(c)) for c in (few, many))
+    assert p_few.ckpt_epochs.size < p_many.ckpt_epochs.size and p_few.window == p_many.window
+    sw.run_sweep(few, factory, tmp_path / "few", progress=False)
+    ds = sw.run_sweep(many, factory, tmp_path / "many", progress=False).dataset
+    worst, n = compare_with_brute_force(ds, p_many, factory)
+    assert n == ds.max_2d_m.size and max(worst.values()) <= 1e-9, worst
+
+
 def test_schedule_ramps_and_end_of_drive_equal_brute_force(tmp_path):
     (tmp_path / "outages.csv").write_text(SCHEDULE)
     text = textwrap.dedent("""

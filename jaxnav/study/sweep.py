@@ -442,9 +442,14 @@ _COMPILED: list[tuple[tuple, _Static, Any]] = []
 _COMPILED_MAX = 16
 
 
-def _compiled(kind: str, st: _Static, build: Callable, args: tuple, devices: tuple, stats):
+def _compiled(kind: str, st: _Static, build: Callable, args: tuple, devices: tuple, stats,
+              extra_key: tuple = ()):
+    """The compiled ``build()`` for these argument shapes, from the cache when ``kind``, the
+    static configuration, the shapes, the devices and ``extra_key`` (whatever else ``build``
+    closes over) all agree."""
     leaves, treedef = jax.tree.flatten(args)
-    sig = (kind, treedef, tuple((jnp.shape(a), jnp.result_type(a)) for a in leaves), devices)
+    sig = (kind, treedef, tuple((jnp.shape(a), jnp.result_type(a)) for a in leaves), devices,
+           extra_key)
     for i, (k, k_st, fn) in enumerate(_COMPILED):
         if k == sig and eqx.tree_equal(k_st, st) is True:
             _COMPILED.append(_COMPILED.pop(i))
@@ -745,9 +750,12 @@ class _GroupRunner:
                 plan.prefix, plan.recovery, float(plan.timeline.epoch_dt_s), plan.mcfg,
                 plan.cfg.metric_window == "with_ramp",
             )
+            # The checkpoint count is baked into the compiled scan (its buffer), not visible in
+            # the argument shapes: it must be part of the cache key.
             self.full = _compiled(
                 "full", self.st, lambda: _make_full_run(self.st, plan.ckpt_epochs.size),
                 (tf_dyn, prob.carry0, prob.inputs, self.slot), (jax.devices()[0],), self.stats,
+                extra_key=(int(plan.ckpt_epochs.size),),
             )
         elif not eqx.tree_equal(tf_static, self.st.tf_static) or (
             float(prob.elevation_mask_rad) != self.st.elevation_mask_rad
