@@ -518,7 +518,11 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     bad = is_code & (np.abs(dz - med) > nf.prefit_code_m)
     bad_slot = np.zeros(S, bool)
     bad_slot[slot[bad]] = True
-    mask = mask & ~bad_slot[slot]
+    code_slot = np.zeros(S, bool)
+    code_slot[slot[is_code]] = True
+    n_min = 4  # tight.MIN_PREFIT_SATELLITES: the lock-out guard
+    if code_slot.sum() < n_min or (code_slot & ~bad_slot).sum() >= n_min:
+        mask = mask & ~bad_slot[slot]
 
     x, P, used, nis = _update_with_postfit(nf, P, dz, H, r_var, mask, slot, kind)
 

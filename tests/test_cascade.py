@@ -236,3 +236,41 @@ def test_lc_zupt_system_detects_standstills_and_holds_the_velocity_in_an_outage(
     assert np.asarray(out.lc.applied.zaru)[rest][10:].mean() > 0.8
     assert zupt[w].mean() > 0.8 and not zupt[moving].any()
     assert v_err[w].max() < 0.5 * res["lc_ins15"][1][w].max()
+
+
+def test_fixes_resume_right_after_a_3_min_outage(factory):
+    """After 180 s without satellites the PPP-only filter's constant-velocity prediction is
+    tens to hundreds of metres off, so most residuals fail the 20-m pre-fit test; the lock-out
+    guard (tight._prefit_mask) lets the chi-square gate decide, and fixes resume at once (before
+    the guard this filter never fixed again: seed002's LC study, 1.9 km after the outage)."""
+    prob = factory.build(None, MODE, SYSTEM, 3)
+    start, length = 90, 180
+    mask = ot.keep_mask(prob.elevation, prob.available, ot.Outage(start, length, 0))
+    inp = prob.inputs._replace(gnss=prob.inputs.gnss._replace(keep=prob.inputs.gnss.keep & mask))
+    _, out = jax.jit(cascade.run)(prob.tf, prob.carry0, inp)
+    end = start + length
+    ppp_err = _h_err(out.ppp.llh[end - 1], prob.truth.llh[end - 1])
+    h = _h_err(out.lc.llh, prob.truth.llh)
+    print(f"PPP-only prediction off by {ppp_err:.0f} m at the outage end; LC error at the end "
+          f"{h[end - 1]:.1f} m, 10 s later {h[end + 10]:.2f} m")
+    assert ppp_err > 50.0  # the case the guard is for (plain pre-fit test: no satellite passes)
+    assert np.all(np.asarray(out.fix.pos_valid[end + 1 : end + 20]))
+    assert h[end + 10] < 3.0
+
+
+def test_prefit_test_removes_an_outlier_but_never_locks_the_filter_out():
+    """Six code satellites: one 50-m outlier among consistent residuals is removed (S002's
+    pre-fit test); residuals spread by hundreds of metres (a prediction far off) are all kept."""
+    from jaxnav.gnss import ppp
+
+    cfg = ppp.PppConfig(mode="df_code", n_slots=6)
+    n = 6
+
+    def rows(dz):
+        return ppp.Rows(jnp.asarray(dz), jnp.zeros((n, 4)), jnp.eye(n), jnp.ones(n, bool),
+                        jnp.arange(n), jnp.full(n, ppp.KIND_CODE))
+
+    one_bad = np.asarray(tight._prefit_mask(cfg, rows([3.0, 1.0, 2.0, 52.0, 0.0, 1.5])))
+    np.testing.assert_array_equal(one_bad, [True, True, True, False, True, True])
+    spread = np.asarray(tight._prefit_mask(cfg, rows([-400.0, 250.0, 30.0, 600.0, -90.0, 0.0])))
+    assert spread.all()

@@ -186,13 +186,28 @@ def _reset_slots(tf: TightFilter, layout, gnss_est, P, obs: ppp.GnssObs, restart
     return gnss_est, P
 
 
+#: The pre-fit test never leaves fewer code satellites than this (position + receiver clock).
+MIN_PREFIT_SATELLITES = 4
+
+
 def _prefit_mask(cfg: ppp.PppConfig, rows: ppp.Rows):
-    """Coarse pre-fit test on code rows: |dz - median(dz_code)| <= prefit_code_m (S002: 20 m)."""
+    """Coarse pre-fit test on code rows: |dz - median(dz_code)| <= prefit_code_m (S002: 20 m).
+
+    Lock-out guard (chosen): when the test would leave fewer than ``MIN_PREFIT_SATELLITES`` of
+    at least that many code satellites, it is skipped for the epoch and the chi-square gate,
+    which scales with the predicted covariance, decides alone. Otherwise a filter whose
+    prediction drifted far during a long outage (a PPP-only constant-velocity filter after 3
+    minutes: ~1 km) sees satellite-dependent residuals of hundreds of metres, rejects them all
+    and never fixes again (seed002 LC study, measured before the guard)."""
     is_code = (rows.kind == ppp.KIND_CODE) & rows.mask
     med = jnp.nanmedian(jnp.where(is_code, rows.dz, jnp.nan))
     bad = is_code & (jnp.abs(rows.dz - jnp.nan_to_num(med)) > cfg.prefit_code_m)
     bad_slot = jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(bad)
-    return rows.mask & ~bad_slot[rows.slot]
+    code_slot = jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(is_code)
+    lockout = (jnp.sum(code_slot) >= MIN_PREFIT_SATELLITES) & (
+        jnp.sum(code_slot & ~bad_slot) < MIN_PREFIT_SATELLITES
+    )
+    return rows.mask & ~(bad_slot[rows.slot] & ~lockout)
 
 
 def _clock_jump(cfg: ppp.PppConfig, layout: StateLayout, gnss_est, P, rows: ppp.Rows):
