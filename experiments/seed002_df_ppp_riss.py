@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -306,6 +307,13 @@ def main(argv=None) -> int:
 
     sections.insert(0, ("Setup and assumptions", ASSUMPTIONS.format(
         hw=json.dumps(hw), slow=json.dumps(slow), lc=json.dumps(lc))))
+    if quick:
+        discussion = "(--quick: no discussion; see the full report.)"
+    elif DISCUSSION_PATH.exists():
+        discussion = DISCUSSION_PATH.read_text()
+    else:
+        discussion = f"(no hand-written discussion: {DISCUSSION_PATH.name} is missing.)"
+    sections.append(("What differs and why", discussion))
     total = time.perf_counter() - t_start
     tim = "\n".join(f"- {k}: {fmt(v, 1) + ' s' if isinstance(v, float) else v}"
                     for k, v in timings.items())
@@ -318,6 +326,9 @@ def main(argv=None) -> int:
 
 
 LC_SYSTEM = "lc_ins15_nhc_zupt"
+# The interpretation of the full-run numbers is written by hand after reading them, kept beside
+# the script and inserted into the full report.
+DISCUSSION_PATH = Path(__file__).resolve().parent / "results" / NAME / "discussion.md"
 
 
 def lc_part(scn, quick, excl_ch5, out, figs) -> str:
