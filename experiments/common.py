@@ -130,3 +130,13 @@ def run_time_lines(timings: dict, stats: dict) -> list[str]:
             f"{st['full_run_s']:.0f} s, evaluation {st['eval_s']:.0f} s, chunks computed "
             f"{st['chunks_computed']} / reused {st['chunks_reused']}")
     return lines
+
+
+def hand_written_discussion(path: Path, quick: bool) -> str:
+    """A full report's 'What differs and why': the text beside the script, written by hand after
+    reading the full run (a ``--quick`` report gets a pointer instead)."""
+    if quick:
+        return "(--quick: no discussion; see the full report.)"
+    if path.exists():
+        return path.read_text()
+    return f"(no hand-written discussion: {path.name} is missing.)"

@@ -38,6 +38,7 @@ from common import (
     comparison_table,
     fmt,
     full_availability_errors,
+    hand_written_discussion,
     markdown_table,
     parse_args,
     ratio,
@@ -567,12 +568,7 @@ def build_sections(quick, size, modes, datasets, ok, stats, timings, t51, t51_te
         ("Figures", fig_md),
         ("Run", "\n".join(run)),
     ]
-    if quick:
-        discussion = "(--quick: no discussion; see the full report.)"
-    elif DISCUSSION_PATH.exists():
-        discussion = DISCUSSION_PATH.read_text()
-    else:
-        discussion = f"(no hand-written discussion: {DISCUSSION_PATH.name} is missing.)"
+    discussion = hand_written_discussion(DISCUSSION_PATH, quick)
     sections.insert(9, ("What differs and why", discussion))
     return sections
 

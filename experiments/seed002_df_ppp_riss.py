@@ -32,7 +32,14 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from common import comparison_table, fmt, markdown_table, parse_args, write_report
+from common import (
+    comparison_table,
+    fmt,
+    hand_written_discussion,
+    markdown_table,
+    parse_args,
+    write_report,
+)
 from seed001_ic_ppp_ins import (
     PPP_ALONE,
     PppAloneFactory,
@@ -307,12 +314,7 @@ def main(argv=None) -> int:
 
     sections.insert(0, ("Setup and assumptions", ASSUMPTIONS.format(
         hw=json.dumps(hw), slow=json.dumps(slow), lc=json.dumps(lc))))
-    if quick:
-        discussion = "(--quick: no discussion; see the full report.)"
-    elif DISCUSSION_PATH.exists():
-        discussion = DISCUSSION_PATH.read_text()
-    else:
-        discussion = f"(no hand-written discussion: {DISCUSSION_PATH.name} is missing.)"
+    discussion = hand_written_discussion(DISCUSSION_PATH, quick)
     sections.append(("What differs and why", discussion))
     total = time.perf_counter() - t_start
     tim = "\n".join(f"- {k}: {fmt(v, 1) + ' s' if isinstance(v, float) else v}"

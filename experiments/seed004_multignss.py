@@ -31,6 +31,7 @@ from common import (
     comparison_table,
     fmt,
     full_availability_errors,
+    hand_written_discussion,
     markdown_table,
     parse_args,
     run_time_lines,
@@ -318,12 +319,7 @@ def build_sections(quick, size, labels, ds, errs, dt, stats, timings, figs):
         "outages.",
     ])
     run = run_time_lines(timings, stats)
-    if quick:
-        discussion = "(--quick: no discussion; see the full report.)"
-    elif DISCUSSION_PATH.exists():
-        discussion = DISCUSSION_PATH.read_text()
-    else:
-        discussion = f"(no hand-written discussion: {DISCUSSION_PATH.name} is missing.)"
+    discussion = hand_written_discussion(DISCUSSION_PATH, quick)
     return [
         ("Headline: seed vs jaxnav",
          "The seed gives percentages and words only (its Tables 1-4 are missing). Gains are "
