@@ -140,13 +140,7 @@ class RissSystem(eqx.Module):
         if self.layout.has("odo_speed"):
             scale_rate = riss_errors.odometer_scale_rate(nav, mean_inputs, dt_ep, sensors)
         F = riss_errors.algebraic_velocity_dynamics(F, self.layout, nav, read_beta, scale_rate)
-        forward = jnp.stack(
-            [
-                jnp.sin(nav.azimuth) * jnp.cos(nav.pitch),
-                jnp.cos(nav.azimuth) * jnp.cos(nav.pitch),
-                jnp.sin(nav.pitch),
-            ]
-        )
+        forward = riss_errors.along_track_unit(nav.azimuth, nav.pitch)
         n = self.layout.size
         pos, vel = self.layout.sl("pos"), self.layout.sl("vel")
         up = jnp.array([0.0, 0.0, 1.0])

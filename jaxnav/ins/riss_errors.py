@@ -258,6 +258,13 @@ def riss16_dynamics(
     return F, G, Qc
 
 
+def along_track_unit(azimuth, pitch):
+    """u(A, p) = (sinA cosp, cosA cosp, sinp): the ENU direction of the RISS velocity
+    (S000 eqs 4.4-4.6, v = v_od u)."""
+    cp = jnp.cos(pitch)
+    return jnp.stack([jnp.sin(azimuth) * cp, jnp.cos(azimuth) * cp, jnp.sin(pitch)])
+
+
 def mechanized_velocity_jacobian(layout: StateLayout, state: RissState):
     """M (3 x n): the RISS velocity error the azimuth, odometer and pitch-source states imply.
 
@@ -282,7 +289,7 @@ def mechanized_velocity_jacobian(layout: StateLayout, state: RissState):
     sa, ca = jnp.sin(state.azimuth), jnp.cos(state.azimuth)
     sp, cp = jnp.sin(state.pitch), jnp.cos(state.pitch)
     if layout.has("odo_speed"):
-        M = M.at[:, layout.i("odo_speed")].set(jnp.stack([sa * cp, ca * cp, sp]))
+        M = M.at[:, layout.i("odo_speed")].set(along_track_unit(state.azimuth, state.pitch))
     if layout.has("accel_bias_y"):
         v_od = jnp.linalg.norm(state.vel_enu)
         g = normal_gravity(state.llh[0], state.llh[2])
@@ -350,10 +357,8 @@ def algebraic_velocity_dynamics(F, layout: StateLayout, state: RissState, read_b
         F_new = F_new.at[i, :].set(0.0).at[i, i].set(odo_scale_rate_1_s)
     else:
         az_rate = F[vel.start, vel.start + 1]  # the seed's F[ve, vn] = A' (rotation with A)
-        sa, ca = jnp.sin(state.azimuth), jnp.cos(state.azimuth)
-        sp, cp = jnp.sin(state.pitch), jnp.cos(state.pitch)
         rows = rows.at[0, vel.start + 1].set(az_rate).at[1, vel.start].set(-az_rate)
-        rows = rows.at[:, layout.i("odo_accel")].set(jnp.stack([sa * cp, ca * cp, sp]))
+        rows = rows.at[:, layout.i("odo_accel")].set(along_track_unit(state.azimuth, state.pitch))
     return F_new.at[vel, :].set(rows)
 
 
@@ -400,10 +405,7 @@ def riss_feedback(
     if layout.has("odo_speed"):
         d_speed = dx[layout.i("odo_speed")]
     else:
-        forward = jnp.stack(
-            [jnp.sin(azimuth) * jnp.cos(pitch), jnp.cos(azimuth) * jnp.cos(pitch), jnp.sin(pitch)]
-        )
-        d_speed = forward @ dvel
+        d_speed = along_track_unit(azimuth, pitch) @ dvel
     # The speed error becomes a scale-factor correction: v_od (1 - k') = v_od (1 - k) - d_speed.
     # Below 1 m/s the ratio is ill-conditioned (and at rest the odometer is exact), so k holds.
     speed = jnp.linalg.norm(state.vel_enu)
@@ -418,6 +420,7 @@ __all__ = [
     "RISS16_NOISE",
     "RissNoiseParams",
     "algebraic_velocity_dynamics",
+    "along_track_unit",
     "mechanized_velocity_jacobian",
     "odometer_scale_rate",
     "riss9_dynamics",
