@@ -1,19 +1,88 @@
-"""Test-session set-up."""
+"""Test-session set-up: thread counts, JAX's persistent compilation cache, xdist work units.
 
+The suite runs on two xdist workers (pyproject's addopts: ``-n 2 --dist loadgroup``). Each test
+module is one work unit (its module-scoped fixtures, e.g. a simulated drive, are built once), except
+the tests marked ``heavy`` (they start subprocesses or measure time or memory), which form one
+unit of their own, so that no two of them ever run at the same time. Units start longest first.
+"""
+
+import importlib
 import os
+import sys
+from pathlib import Path
+
+import pytest
 
 # Before any test module loads scipy's OpenBLAS (jaxlib's LAPACK): see jaxnav/__init__.py.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-FIRST = ("test_sweep.py",)
+# JAX's persistent compilation cache, shared by both xdist workers and every subprocess a test
+# starts (they inherit the environment). It lives outside the project (.ci/run deletes .venv, a
+# clean checkout has no build products) and is only a cache: a cold one, as on a new machine,
+# gives the same results, only slower. JAX_COMPILATION_CACHE_DIR chooses another folder.
+os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR", str(Path.home() / ".cache" / "jaxnav" / "jax-compilation-cache")
+)
+# Cache every compilation of 0.5 s or more (JAX's default of 1 s misses many of the medium-size
+# scans the tests compile); smaller ones are cheaper to rebuild than to read.
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+
+HEAVY_GROUP = "heavy"
+# Work units that take longest (docs/testing.md, measured on 2 cores), started first so that
+# neither worker is left with a long unit at the end; the rest keep their collection order.
+LONGEST_FIRST = (
+    HEAVY_GROUP,
+    "test_consistency",
+    "test_tight",
+    "test_cascade",
+    "test_exp_seed001_002",
+    "test_exp_seed000_004",
+    "test_scenario",
+)
+
+
+def _group(item) -> str:
+    return HEAVY_GROUP if item.get_closest_marker("heavy") else item.path.stem
+
+
+def pytest_itemcollected(item):
+    """Each test's xdist group: its module, or ``heavy`` (set as it is collected, before any
+    ``pytest_collection_modifyitems``, where xdist turns the groups into work units)."""
+    item.add_marker(pytest.mark.xdist_group(_group(item)))
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """Run the sweep-engine tests first, in a fresh process state.
+    """The longest groups first (a stable sort: each module keeps its order)."""
+    rank = {g: i for i, g in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(_group(item), len(rank)))
 
-    Their whole-drive brute-force comparison stalled XLA:CPU (every thread parked on a futex, the
-    caller waiting for a result that never came) in 2 of 2 full-suite runs on 2 cores when it
-    ran after ~200 other tests in the same process, and never in 4 runs of its own file
-    (jax/jaxlib 0.10.2). Moving it first keeps the suite's coverage; the stall is reported.
-    """
-    items.sort(key=lambda item: 0 if item.path.name in FIRST else 1)
+
+@pytest.hookimpl(optionalhook=True)  # an xdist hook: the controller sees each worker's ids
+def pytest_xdist_node_collection_finished(node, ids):
+    """Stop if the groups were lost: pytest 9.2 with xdist 3.8 drops them without a word, and
+    every module fixture is then built on both workers (see pyproject's pytest pin)."""
+    if node.config.getoption("dist") == "loadgroup" and ids and not any("@" in i for i in ids):
+        pytest.exit("xdist --dist loadgroup did not group the tests (a pytest / pytest-xdist "
+                    "incompatibility, see pyproject's pytest pin); use pytest < 9.2 or -n 0",
+                    returncode=pytest.ExitCode.USAGE_ERROR)
+
+
+EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+
+
+@pytest.fixture(scope="session")
+def run_quick_experiment():
+    """``experiments/<name>.py --quick --out DIR`` in this process, through the script's
+    ``main(argv)``: its compiled functions stay in this worker, the import costs nothing. Returns
+    the text of ``DIR/report.md``."""
+
+    def run(name: str, out: Path) -> str:
+        if str(EXPERIMENTS) not in sys.path:
+            sys.path.insert(0, str(EXPERIMENTS))
+        module = importlib.import_module(name)
+        assert module.main(["--quick", "--out", str(out)]) == 0, name
+        report = out / "report.md"
+        assert report.is_file(), name
+        return report.read_text()
+
+    return run

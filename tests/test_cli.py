@@ -3,6 +3,7 @@
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 import xarray as xr
@@ -58,10 +59,13 @@ def test_tiny_sweep_writes_results_tables_and_plots(tmp_path):
         cli.main(["sweep", str(cfg), "--out", str(out)])
 
 
+@pytest.mark.heavy
 def test_console_script_help():
-    r = subprocess.run(
-        [sys.executable, "-m", "jaxnav.cli", "--help"], capture_output=True, text=True, check=True
-    )
+    """The suite's one subprocess run of the command line: the ``jaxnav`` console script that
+    pyproject installs beside this interpreter (``python -m jaxnav.cli`` where it is absent)."""
+    script = Path(sys.executable).with_name("jaxnav")
+    cmd = [str(script)] if script.is_file() else [sys.executable, "-m", "jaxnav.cli"]
+    r = subprocess.run([*cmd, "--help"], capture_output=True, text=True, check=True)
     for command in ("demo", "sweep", "ppp", "lc"):
         assert command in r.stdout
 

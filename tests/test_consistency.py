@@ -17,6 +17,10 @@ For each mode, N runs of a 5-minute drive: the run-averaged NEES at each epoch, 
 the epochs, must lie inside the two-sided 95 % band of chi2(N n) / N (n = 3 position, 6
 position + velocity). Consecutive epochs are correlated, so the N-run band (not an N x T one) is
 the honest width for the time average.
+
+The suite runs N = 50 (the band computed for 50 runs, wider than for 200 but still the exact
+95 % band); the full-size N = 200 form is marked ``full`` and runs with
+``python -m pytest -m full tests/test_consistency.py`` (docs/testing.md).
 """
 
 from __future__ import annotations
@@ -38,7 +42,8 @@ from jaxnav.sim import observations, scenario
 from jaxnav.study import metrics as mt
 from jaxnav.study.factory import SimFactory
 
-N_RUNS = 200
+N_RUNS_CI = 50  # the suite's size (docs/testing.md)
+N_RUNS_FULL = 200  # the full-size check (-m full)
 CHUNK = 50
 DURATION_S = 300.0
 
@@ -92,16 +97,16 @@ def _factory() -> SimFactory:
 
 
 @functools.cache
-def _realizations(single_frequency: bool):
-    """N_RUNS realisations (chunks of CHUNK, host memory) and initial-error keys; shared by the
-    modes with the same frequency plan."""
+def _realizations(single_frequency: bool, n_runs: int):
+    """n_runs realisations (chunks of CHUNK, host memory) and initial-error keys; shared by the
+    modes with the same frequency plan. The first N of a larger set are the smaller set."""
     factory = _factory()
     geo = factory.geo
     cfg = dataclasses.replace(factory.cfg, imu_grade="span_cpt_in_run")
     realize = jax.jit(jax.vmap(lambda k: scenario.realize(k, geo, cfg, single_frequency)))
-    keys = jax.random.split(jax.random.PRNGKey(2026), (N_RUNS, 2))
+    keys = jax.random.split(jax.random.PRNGKey(2026), (N_RUNS_FULL, 2))[:n_runs]
     chunks = []
-    for i in range(0, N_RUNS, CHUNK):
+    for i in range(0, n_runs, CHUNK):
         real = realize(keys[i : i + CHUNK, 0])
         # iono_scale scales the truth only: the model the filter reads must be zeroed too
         obs0 = real.obs0._replace(iono_model_l1_m=jnp.zeros_like(real.obs0.iono_model_l1_m))
@@ -113,7 +118,7 @@ def _realizations(single_frequency: bool):
     return chunks
 
 
-def _nees_runs(mode: str):
+def _nees_runs(mode: str, n_runs: int):
     factory = _factory()
     tf = _matched_filter(factory, mode)
     geo = factory.geo
@@ -129,7 +134,8 @@ def _nees_runs(mode: str):
         return q_pos, q_pv, out.n_sat
 
     batch = jax.jit(jax.vmap(one))
-    parts = [batch(obs0, inputs, k) for (obs0, inputs), k in _realizations(mode == "sf_code")]
+    reals = _realizations(mode == "sf_code", n_runs)
+    parts = [batch(obs0, inputs, k) for (obs0, inputs), k in reals]
     q_pos, q_pv, n_sat = (np.concatenate([np.asarray(p[j]) for p in parts]) for j in range(3))
     return q_pos, q_pv, n_sat
 
@@ -138,26 +144,52 @@ def _band(n_dof: int, n_runs: int):
     return chi2.ppf(0.025, n_runs * n_dof) / n_runs, chi2.ppf(0.975, n_runs * n_dof) / n_runs
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("mode", models.MODES)
-def test_time_averaged_nees_in_chi2_band(mode):
-    q_pos, q_pv, n_sat = _nees_runs(mode)
+# Hatch-smoothed code carries errors correlated over the smoothing window by construction (S000's
+# scheme and ours); a filter weighting each epoch as independent is over-confident. Measured with
+# 200 runs: position 3.52 (band 2.67-3.34), position+velocity 9.04 (band 5.53-6.49). Not asserted
+# as a property: issue 16 makes this filter honest, and then the mark goes.
+_SDF_OVERCONFIDENT = pytest.mark.xfail(
+    reason="smoothed-code filter over-confident (correlated smoothing error, issue 16)",
+    strict=False,
+)
+_MODES = [pytest.param(m, marks=_SDF_OVERCONFIDENT) if m == "sdf_code" else m
+          for m in models.MODES]
+
+
+def _check_nees_band(mode: str, n_runs: int):
+    q_pos, q_pv, n_sat = _nees_runs(mode, n_runs)
+    assert q_pos.shape[0] == n_runs
     assert np.all(np.isfinite(q_pos)) and np.all(np.isfinite(q_pv))
     assert n_sat.mean() >= 4.0, "the drive must keep enough satellites for a meaningful test"
     anees_pos = q_pos.mean(axis=0).mean()
     anees_pv = q_pv.mean(axis=0).mean()
-    lo3, hi3 = _band(3, N_RUNS)
-    lo6, hi6 = _band(6, N_RUNS)
+    lo3, hi3 = _band(3, n_runs)
+    lo6, hi6 = _band(6, n_runs)
     print(
-        f"\n{mode}: {N_RUNS} runs x {q_pos.shape[1]} epochs: ANEES position {anees_pos:.2f} "
+        f"\n{mode}: {n_runs} runs x {q_pos.shape[1]} epochs: ANEES position {anees_pos:.2f} "
         f"(band {lo3:.2f}-{hi3:.2f}), position+velocity {anees_pv:.2f} "
         f"(band {lo6:.2f}-{hi6:.2f}); mean satellites used {n_sat.mean():.1f}"
     )
-    if mode == "sdf_code":
-        # Hatch-smoothed code carries errors correlated over the smoothing window by
-        # construction (S000's scheme and ours); a filter weighting each epoch as independent
-        # must be over-confident. Measured: position 3.52, position+velocity 9.04.
-        assert anees_pv > hi6
-        return
     assert lo3 <= anees_pos <= hi3
     assert lo6 <= anees_pv <= hi6
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", _MODES)
+def test_time_averaged_nees_in_chi2_band(mode):
+    _check_nees_band(mode, N_RUNS_CI)
+
+
+@pytest.mark.full
+@pytest.mark.parametrize("mode", _MODES)
+def test_time_averaged_nees_in_chi2_band_full_size(mode):
+    _check_nees_band(mode, N_RUNS_FULL)
+
+
+def test_band_is_the_exact_chi_square_quantile_pair():
+    """The band narrows as 1/sqrt(N) about n: chi2(N n) / N has mean n and sd sqrt(2 n / N)."""
+    for n_runs in (N_RUNS_CI, N_RUNS_FULL):
+        lo, hi = _band(3, n_runs)
+        half = 1.959964 * np.sqrt(2 * 3 / n_runs)  # the normal approximation of the band
+        assert lo < 3.0 < hi
+        assert (hi - lo) / 2 == pytest.approx(half, rel=0.02)

@@ -1,36 +1,22 @@
 """The seed-000 and seed-004 reproduction scripts run end to end in their --quick form.
 
-Each script is executed as the user runs it (``python experiments/<name>.py --quick --out DIR``,
-a subprocess with this interpreter), so the scripts never rot: exit code 0, a report.md holding
-the seed-vs-jaxnav comparison table with finite numbers, and every PNG it links present and a
-real PNG file.
+Each script runs in this process through its ``main(argv)`` (``conftest.run_quick_experiment``),
+so the scripts never rot: a report.md holding the seed-vs-jaxnav comparison table with finite
+numbers, every PNG it links present and a real PNG file, and the study's qualitative claim that
+the quick form is large enough to support, read from the sweep's Dataset.
 """
 
 from __future__ import annotations
 
 import math
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from jaxnav.study import sweep
+
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-# Generous: the quick runs take ~1 min on an idle 2-core machine, several under heavy load.
-TIMEOUT_S = 1500
-
-
-def _run(name: str, out: Path) -> str:
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "experiments" / f"{name}.py"), "--quick", "--out", str(out)],
-        cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S,
-    )
-    assert proc.returncode == 0, f"{name} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-    report = out / "report.md"
-    assert report.is_file()
-    return report.read_text()
 
 
 def _comparison_rows(text: str) -> list[list[str]]:
@@ -45,30 +31,7 @@ def _comparison_rows(text: str) -> list[list[str]]:
     return rows
 
 
-def _check_figures(text: str, out: Path, expected: set[str]):
-    linked = set(re.findall(r"!\[[^\]]*\]\(([^)]+\.png)\)", text))
-    assert expected <= linked, f"missing figure links: {expected - linked}"
-    for name in linked:
-        path = out / name
-        assert path.is_file(), name
-        assert path.read_bytes()[:8] == PNG_MAGIC, name
-        assert path.stat().st_size > 5000, name  # a drawn figure, not an empty canvas
-
-
-@pytest.mark.parametrize(
-    "name, figures, quantity",
-    [
-        ("seed000_ppp_riss_outages",
-         {"error_growth_suburban.png", "dist_by_satellites_suburban.png",
-          "error_growth_urban.png", "dist_by_satellites_urban.png", "seed_vs_ours.png"},
-         "Table 5.2 CC, 0 kept [m]"),
-        ("seed004_multignss",
-         {"error_growth.png", "dist_by_duration.png", "rms_full_availability.png"},
-         "max 2D, 10-s outage, GPS UD vs 'decimetre level' (<= 1 m) [m]"),
-    ],
-)
-def test_quick_run_writes_report_and_figures(tmp_path, name, figures, quantity):
-    text = _run(name, tmp_path)
+def _check_report(text: str, out: Path, expected_figures: set[str], quantity: str):
     assert "--quick: reduced run" in text
     rows = {r[0]: r for r in _comparison_rows(text)}
     assert quantity in rows, sorted(rows)
@@ -76,7 +39,52 @@ def test_quick_run_writes_report_and_figures(tmp_path, name, figures, quantity):
     seed, ours, ratio = float(seed), float(ours), float(ratio)
     assert math.isfinite(ours) and ours > 0.0
     assert ratio == pytest.approx(ours / seed, rel=0.02, abs=0.006)
-    _check_figures(text, tmp_path, figures)
-    # The sweep is resumable: its directory holds the manifest and the assembled results.
-    sweeps = list(tmp_path.glob("sweep-*/results.nc"))
-    assert sweeps, "no sweep results written"
+    linked = set(re.findall(r"!\[[^\]]*\]\(([^)]+\.png)\)", text))
+    assert expected_figures <= linked, f"missing figure links: {expected_figures - linked}"
+    for name in linked:
+        path = out / name
+        assert path.is_file(), name
+        assert path.read_bytes()[:8] == PNG_MAGIC, name
+        assert path.stat().st_size > 5000, name  # a drawn figure, not an empty canvas
+
+
+def _max_2d(out: Path, sweep_dir: str, **sel) -> float:
+    """Mean maximum 2D error of one cell of a sweep the script wrote (resumable directory)."""
+    ds = sweep.load_results(out / sweep_dir / sweep.RESULTS_FILE)
+    return float(ds["max_2d_m"].sel(**sel).mean())
+
+
+def test_seed000_quick(run_quick_experiment, tmp_path):
+    text = run_quick_experiment("seed000_ppp_riss_outages", tmp_path)
+    _check_report(text, tmp_path,
+                  {"error_growth_suburban.png", "dist_by_satellites_suburban.png",
+                   "error_growth_urban.png", "dist_by_satellites_urban.png", "seed_vs_ours.png"},
+                  "Table 5.2 CC, 0 kept [m]")
+    # S000 Tables 5.2 / 5.3: with code + carrier, keeping 3 satellites through a 60-s outage
+    # bounds the error growth below that of a complete outage, on both drives. (The quick form
+    # has one placement and one realisation per drive: the claim is about every outage, so one
+    # each is a fair, if small, sample.)
+    for drive in ("suburban", "urban"):
+        zero = _max_2d(tmp_path, f"sweep-{drive}", mode="float_ppp", satellites_kept=0)
+        three = _max_2d(tmp_path, f"sweep-{drive}", mode="float_ppp", satellites_kept=3)
+        print(f"\n{drive}: float PPP max 2D, 0 kept {zero:.2f} m, 3 kept {three:.2f} m")
+        assert three < zero, drive
+
+
+def test_seed004_quick(run_quick_experiment, tmp_path):
+    text = run_quick_experiment("seed004_multignss", tmp_path)
+    _check_report(text, tmp_path,
+                  {"error_growth.png", "dist_by_duration.png", "rms_full_availability.png"},
+                  "max 2D, 10-s outage, GPS UD vs 'decimetre level' (<= 1 m) [m]")
+    # S004: through complete outages the error of the tactical-grade INS grows with the outage
+    # length (decimetres at 10 s, metres at 60 s), for the undifferenced and the BSSD filter
+    # alike. What the quick form cannot support, and so does not check: the absolute "decimetre
+    # level" at 10 s (its one placement comes 150 s after the start, not 300 s: measured 1.49 m
+    # there, 0.65 m mean in the full run) and "GPS + GLONASS + Galileo beats GPS" (it runs only
+    # the two GPS scenarios; the 27-slot multi-GNSS filter is left to the full run for its
+    # compile time).
+    for label in ("gps-ud", "gps-bssd"):
+        ten = _max_2d(tmp_path, f"sweep-{label}", duration=10.0)
+        thirty = _max_2d(tmp_path, f"sweep-{label}", duration=30.0)
+        print(f"\n{label}: max 2D 10-s outage {ten:.2f} m, 30-s outage {thirty:.2f} m")
+        assert ten < thirty, label

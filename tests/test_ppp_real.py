@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+import re
 from pathlib import Path
 
 import jax
@@ -281,9 +282,12 @@ def test_static_dual_frequency_ppp_converges_to_the_itrf_coordinate(dual):
         ]
     )
     hor = np.hypot(enu[:, 0], enu[:, 1])
-    # 2 h of GPS at 30 s (measured final E, N, U: -1.1, -2.7, +16.1 cm)
+    # 2 h of GPS at 30 s (measured final E, N, U: -1.1, -2.7, +16.1 cm). Bounds: the 10 cm
+    # horizontal convergence criterion of S002 §5.2 (static PPP < 10 cm after 10.5 min there),
+    # and twice that in height, the VDOP / HDOP ratio of GPS at mid-latitudes (~2): the
+    # height converges over hours.
     assert hor[-1] < 0.10, enu
-    assert abs(enu[-1, 2]) < 0.30, enu  # measured 16 cm: height converges over hours
+    assert abs(enu[-1, 2]) < 0.20, enu
     assert hor[-1] < hor[0]  # it converged from the SPP start
     sig = np.sqrt(np.asarray(out.P_nav)[:, 0, 0]) * float(
         geodesy.metres_per_radian(jnp.asarray(np.asarray(out.llh)[-1]))[0]
@@ -300,8 +304,10 @@ def test_kinematic_dual_frequency_ppp_decimetre_after_one_hour(dual):
     ecef = np.asarray(jax.vmap(geodesy.llh_to_ecef)(out.llh))
     enu = np.stack([_enu(p) for p in ecef[120:]])
     rms = np.sqrt(np.mean(enu**2, axis=0))
-    assert math.hypot(rms[0], rms[1]) < 0.20, rms  # measured 4.0 cm (E 1.5, N 3.7)
-    assert rms[2] < 0.30, rms  # measured 8.9 cm
+    # S002 §5.2's kinematic criterion, horizontal < 10 cm once converged (reached after 33.5 min
+    # there), and twice that in height (VDOP / HDOP ~ 2). Measured 4.0 cm (E 1.5, N 3.7), 8.9 cm.
+    assert math.hypot(rms[0], rms[1]) < 0.10, rms
+    assert rms[2] < 0.20, rms
     # a random walk of 100 m/sqrt(s) really is kinematic: epoch-to-epoch scatter > static's 0
     assert np.std(np.diff(enu[:, 2])) > 1e-3
 
@@ -344,8 +350,17 @@ def test_cli_single_frequency_broadcast_klobuchar(esbc, tmp_path, capsys):
     ecef = np.asarray(jax.vmap(geodesy.llh_to_ecef)(jnp.asarray(sol.llh)))
     enu = np.stack([_enu(p) for p in ecef])
     rms = np.sqrt(np.mean(enu**2, axis=0))
-    assert math.hypot(rms[0], rms[1]) < 3.5, rms  # measured 2.1 m (N 2.0 m in this hour)
-    assert rms[2] < 5.0, rms  # measured 1.4 m
+    spp = re.search(r"least-squares SPP RMS vs reference \((\d+) epochs\): E ([0-9.]+) "
+                    r"N ([0-9.]+) U ([0-9.]+) m", text)
+    assert spp and int(spp.group(1)) == 120, text
+    spp_rms = np.array([float(spp.group(k)) for k in (2, 3, 4)])
+    print(f"\nSF filter RMS E/N/U {np.round(rms, 3)} m, epoch-wise SPP {spp_rms} m")
+    # Reference: the epoch-wise least-squares single-point solution of the same code with the
+    # same corrections (what RTKLIB calls "single"), at the ITRF coordinate. The kinematic
+    # filter adds only dynamics (a 100 m/sqrt(s) random walk) and the a-priori weights, so it
+    # must be no worse than SPP, horizontally and vertically (3 mm: the .pos file's rounding).
+    assert math.hypot(rms[0], rms[1]) <= math.hypot(spp_rms[0], spp_rms[1]) + 3e-3, rms
+    assert rms[2] <= spp_rms[2] + 3e-3, rms
     # the broadcast TGD is applied for C/A users: B1 = c TGD, B2 = (f1/f2)^2 B1
     _, nav, _ = esbc
     tgd = prep_mod._tgd_per_slot(nav, ("G05", "G13"), float(sol.time_gps_s[0]))

@@ -34,6 +34,8 @@ from jaxnav.study import metrics as mt
 from jaxnav.study import outages as ot
 from jaxnav.study import sweep as sw
 
+pytestmark = pytest.mark.heavy  # subprocesses (4 host devices, kill + resume)
+
 HERE = Path(__file__).resolve().parent
 PYTHON = sys.executable
 DEG = math.pi / 180.0

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy import stats
 
 import jaxnav  # noqa: F401
 from jaxnav.filter import systems, tight
@@ -117,7 +118,8 @@ def test_one_to_three_satellites_reduce_outage_error_growth(drive):
     worse. (Measured with the algebraic RISS velocity model: 0/1/2/3 kept = 5.7 / 5.7 / 2.3 /
     3.3 m, so 2 satellites already help here, unlike S000 Table 5.2's "at 0-2 satellites all
     variants are about equal"; with the seeds' integrated velocity error it was 6.3 / 6.4 /
-    7.1 / 5.5 m.)"""
+    7.1 / 5.5 m.) Per scenario, 3 kept is worse than 0 kept in 3 of the 6 (by 0.8-4.9 m): the
+    mean gain is not significant at this size; noted for the consistency work (issue 16)."""
     _, geo, _ = drive
     tf = _filter(drive, "df_code")
     n_keys, length = 2, 60
@@ -146,7 +148,15 @@ def test_one_to_three_satellites_reduce_outage_error_growth(drive):
     assert np.all(dof[..., 0] == 0)  # nothing used with 0 kept
     assert np.all(dof[..., 1:] > 0)  # 1..3 satellites still update the tight filter
     assert mean_err[3] < 0.97 * mean_err[0]
-    assert np.all(mean_err[1:3] <= mean_err[0] * 1.25)
+    # "1-2 satellites never make it worse": paired over the 6 (realisation, placement)
+    # scenarios, the mean increase over 0 kept is not significant at the one-sided 95 % level
+    # (Student t, 5 dof). Measured per-scenario differences: 1 kept -0.27..+0.21 m, 2 kept
+    # -9.8..+2.7 m.
+    per = np.asarray(max_err).reshape(-1, 4)
+    t95 = stats.t.ppf(0.95, per.shape[0] - 1)
+    for k in (1, 2):
+        d = per[:, k] - per[:, 0]
+        assert d.mean() <= t95 * d.std(ddof=1) / np.sqrt(d.size), (k, d)
 
 
 def _elevations(geo, T):
