@@ -23,8 +23,6 @@ import jaxnav  # noqa: F401
 from jaxnav.gnss import corrections, ppp
 from jaxnav.sim import constellation, scenario, sensors
 
-pytestmark = pytest.mark.heavy  # measures the process's memory
-
 DURATION_S = 1800.0
 N_KEYS = 1000  # the full-size run (-m full); the suite runs N_KEYS_CI
 N_KEYS_CI = 300
@@ -169,6 +167,7 @@ def test_realization_is_a_pure_function_of_its_key(drive):
 
 
 @pytest.mark.slow
+@pytest.mark.heavy  # measures the process's memory
 @pytest.mark.parametrize("n", [N_KEYS_CI, pytest.param(N_KEYS, marks=pytest.mark.full)])
 def test_thousand_keys_thirty_minutes_bounded_memory(drive, n):
     """n (300; 1,000 with -m full) realisations of a 30-min drive in chunks of 10, each reduced
