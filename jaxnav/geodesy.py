@@ -7,6 +7,7 @@ use ``jax.vmap`` for batches.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 # WGS-84 defining constants (NIMA TR8350.2).
@@ -31,6 +32,9 @@ _G_A6 = 7.21e-13
 _LLH_ITERATIONS = 8
 
 
+# Functions called on host arrays (tests, post-processing) are jitted: one compiled kernel per
+# argument shape instead of one per primitive (inside another jit they are inlined).
+@jax.jit
 def radii(lat_rad):
     """Meridian and prime-vertical radii: R_M = a(1-e^2)/(1-e^2 s^2)^1.5, R_N = a/(1-e^2 s^2)^.5."""
     s2 = jnp.sin(lat_rad) ** 2
@@ -167,6 +171,7 @@ def transport_rate_enu(llh, vel_enu):
     return jnp.stack([-vn / (r_m + h), ve / (r_n + h), ve * jnp.tan(lat) / (r_n + h)])
 
 
+@jax.jit
 def metres_per_radian(llh):
     """Scale from (d_lat, d_lon, d_h) [rad, rad, m] to local (north, east, up) metres."""
     lat, h = llh[0], llh[2]
@@ -174,6 +179,7 @@ def metres_per_radian(llh):
     return jnp.stack([r_m + h, (r_n + h) * jnp.cos(lat), jnp.ones_like(h)])
 
 
+@jax.jit
 def llh_error_to_enu(dllh, llh):
     """Convert a small geodetic error (d_lat, d_lon, d_h) into ENU metres."""
     north, east, up = metres_per_radian(llh) * dllh

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
@@ -70,6 +71,9 @@ class UpdateResult(NamedTuple):
     dof: jnp.ndarray  # number of used rows
 
 
+# Functions called on host arrays (tests, post-processing) are jitted: one compiled kernel per
+# argument shape instead of one per primitive (inside another jit they are inlined).
+@jax.jit
 def masked_update(x, P, y, H, R, mask, gate=jnp.inf):
     """Joseph-form update with masked, chi-square-gated rows.
 
@@ -113,6 +117,7 @@ def masked_update(x, P, y, H, R, mask, gate=jnp.inf):
     )
 
 
+@jax.jit
 def normalized_residuals(x, P, y, H, R):
     """Normalised residuals nu_i / sqrt(C_ii), C = H P H^T + R (S002's post-fit test uses P+)."""
     nu = y - H @ x
@@ -120,6 +125,7 @@ def normalized_residuals(x, P, y, H, R):
     return nu / jnp.sqrt(jnp.diag(C))
 
 
+@jax.jit
 def reset_states(x, P, reset, variance):
     """Re-initialise the states flagged in ``reset``: x_i = 0, row/column i of P cleared and
     P_ii = variance_i. Used for per-slot ambiguities/ionosphere when a satellite rises or slips.

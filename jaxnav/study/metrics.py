@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -89,22 +90,28 @@ class WindowMetrics(NamedTuple):
     nees_posvel: jnp.ndarray  # mean over the window, 6 dof
 
 
+# Functions called on host arrays (tests, post-processing) are jitted: one compiled kernel per
+# argument shape instead of one per primitive (inside another jit they are inlined).
+@jax.jit
 def wrap_angle(a):
     """Wrap an angle to [-pi, pi)."""
     return jnp.mod(a + jnp.pi, 2.0 * jnp.pi) - jnp.pi
 
 
+@jax.jit
 def _dllh(llh_a, llh_b):
     d = llh_a - llh_b
     return d.at[..., 1].set(wrap_angle(d[..., 1]))
 
 
+@jax.jit
 def enu_errors(llh_est, llh_true):
     """[T, 3] ENU error [m] of llh_est relative to llh_true (scaled at the truth)."""
     north, east, up = jnp.moveaxis(_dllh(llh_est, llh_true) * _mpr(llh_true), -1, 0)
     return jnp.stack([east, north, up], axis=-1)
 
 
+@jax.jit
 def _mpr(llh):
     """geodesy.metres_per_radian over a [T, 3] history: [T, 3] (north, east, up) scales."""
     return jnp.moveaxis(geodesy.metres_per_radian(jnp.moveaxis(llh, -1, 0)), 0, -1)
@@ -132,6 +139,7 @@ def _solve(A, b):
     return jnp.stack(x, axis=-1)
 
 
+@jax.jit
 def nees(est: Track, true: Track, P_nav):
     """Per-epoch NEES e^T P^-1 e: (position [T] 3 dof, position + velocity [T] 6 dof), position
     in metres (module docstring)."""

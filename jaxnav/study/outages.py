@@ -59,6 +59,7 @@ import csv
 import math
 import os
 from collections.abc import Iterable, Sequence
+from functools import partial
 from itertools import combinations
 from pathlib import Path
 from typing import NamedTuple
@@ -220,9 +221,15 @@ def keep_mask(
     if policy.endswith("_geometry") and azimuth is None:
         raise ValueError(f"policy {policy!r} needs the azimuth [T, S]")
     elevation = jnp.asarray(elevation, jnp.float64)
-    available = jnp.asarray(available, bool)
-    n_epochs, n_slots = elevation.shape
     azimuth = jnp.zeros_like(elevation) if azimuth is None else jnp.asarray(azimuth, jnp.float64)
+    return _keep_mask(elevation, jnp.asarray(available, bool), outage, key, azimuth,
+                      elevation_mask_rad, policy=policy)
+
+
+# Jitted (the policy static): a host-side call compiles one kernel per shape, not one per op.
+@partial(jax.jit, static_argnames=("policy",))
+def _keep_mask(elevation, available, outage: Outage, key, azimuth, elevation_mask_rad, *, policy):
+    n_epochs, n_slots = elevation.shape
 
     start = jnp.asarray(outage.start)
     ramp = jnp.maximum(jnp.asarray(outage.ramp), 0)
