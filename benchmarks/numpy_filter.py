@@ -160,7 +160,7 @@ def _mechanize_scalar(llh, vel, q, prev_dth, prev_dv, dth, dv, dt):
 class NumpyTightFilter:
     """Everything ``run`` needs from a jaxnav ``TightFilter``, as Python floats / NumPy arrays."""
 
-    layout: object  # jaxnav.filter.states.StateLayout of the full filter (pure Python)
+    layout: object  # jaxnav.core.states.StateLayout of the full filter (pure Python)
     n_sys: int  # size of the navigation + sensor prefix (INS15: 15)
     n_nav: int  # size of the reported covariance block (pos, vel, att)
     imu_dt_s: float
@@ -195,7 +195,7 @@ class NumpyTightFilter:
     def from_jax(cls, tf) -> NumpyTightFilter:
         """Extract the configuration of ``tf`` (a ``jaxnav.filter.tight.TightFilter``); raises for
         anything but InsSystem/INS15 with undifferenced GPS float PPP, Doppler and ZWD."""
-        from jaxnav.filter.states import INS15
+        from jaxnav.core.states import INS15
         from jaxnav.filter.systems import InsSystem
         from jaxnav.gnss import signals
 

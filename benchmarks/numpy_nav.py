@@ -301,7 +301,7 @@ def mechanize(llh, vel, q, prev_dth, prev_dv, dth, dv, dt):
 
 def ins15_error_dynamics(llh, vel, C, f_b, accel_bias_tau_s, gyro_bias_tau_s):
     """The non-zero 3x3 blocks of the INS15 error-state F (errors.error_dynamics), keyed by
-    (row block, column block) names of ``jaxnav.filter.states.INS15``; GM bias time constants
+    (row block, column block) names of ``jaxnav.core.states.INS15``; GM bias time constants
     per axis [s]."""
     lat, h = llh[0], llh[2]
     ve, vn = vel[0], vel[1]

@@ -67,8 +67,8 @@ import numpy_nav as nn  # noqa: E402  (the NumPy INS port shared with numpy_filt
 
 import jaxnav  # noqa: E402, F401  (float64)
 from jaxnav import attitude, geodesy  # noqa: E402
+from jaxnav.core.states import INS15  # noqa: E402
 from jaxnav.filter import ekf, loose  # noqa: E402
-from jaxnav.filter.states import INS15  # noqa: E402
 from jaxnav.filter.systems import InsSystem, NavSigmas  # noqa: E402
 from jaxnav.ins import strapdown  # noqa: E402
 from jaxnav.sim import sensors  # noqa: E402

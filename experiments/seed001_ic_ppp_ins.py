@@ -39,7 +39,8 @@ from common import comparison_table, fmt, markdown_table, parse_args, write_repo
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
 from jaxnav.filter import ppp_only, tight
-from jaxnav.gnss import models, ppp
+from jaxnav.gnss import modes as ppp_modes
+from jaxnav.gnss import ppp
 from jaxnav.study import config, metrics, report
 from jaxnav.study import factory as factory_mod
 from jaxnav.study.sweep import Problem, run_sweep
@@ -83,7 +84,7 @@ class PppAloneFactory(factory_mod.SimFactory):
             mode=mode,
             systems=cfg.systems,
             n_slots=int(geo.slots.system.shape[0]),
-            estimate_zwd=mode in models.PHASE_MODES,
+            estimate_zwd=ppp_modes.get(mode).uses_phase,
             bssd=self.bssd,
             iono_model_residual_fraction=self.iono_model_fraction,
         )

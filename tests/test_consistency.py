@@ -37,7 +37,7 @@ from scipy.stats import chi2
 
 import jaxnav  # noqa: F401
 from jaxnav.filter import tight
-from jaxnav.gnss import models
+from jaxnav.gnss import modes as ppp_modes
 from jaxnav.sim import observations, scenario
 from jaxnav.study import metrics as mt
 from jaxnav.study.factory import SimFactory
@@ -153,7 +153,7 @@ _SDF_OVERCONFIDENT = pytest.mark.xfail(
     strict=False,
 )
 _MODES = [pytest.param(m, marks=_SDF_OVERCONFIDENT) if m == "sdf_code" else m
-          for m in models.MODES]
+          for m in ppp_modes.MODES]
 
 
 def _check_nees_band(mode: str, n_runs: int):

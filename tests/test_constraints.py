@@ -14,9 +14,9 @@ import pytest
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import attitude, geodesy
+from jaxnav.core.states import INS15, INS27
 from jaxnav.filter import constraints as cons
 from jaxnav.filter import ekf
-from jaxnav.filter.states import INS15, INS27
 from jaxnav.sim import sensors
 from jaxnav.sim import trajectory as tr
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import jaxnav  # noqa: F401
-from jaxnav.filter.states import INS15
+from jaxnav.core.states import INS15
 from jaxnav.gnss import signals
 from jaxnav.sim import scenario, sensors
 from jaxnav.study import factory as fac

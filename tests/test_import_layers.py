@@ -29,9 +29,6 @@ KNOWN_UPWARD = {
     ("filter/cascade.py", "jaxnav.study"),  # sweep ops of the LC system -> study
     ("filter/cascade.py", "jaxnav.study.sweep"),
     ("filter/loose.py", "jaxnav.io"),  # .pos reading -> apps
-    ("gnss/ppp.py", "jaxnav.filter.states"),  # state layouts -> core
-    ("ins/errors.py", "jaxnav.filter.states"),
-    ("ins/riss_errors.py", "jaxnav.filter.states"),
     ("io/prepare.py", "jaxnav.filter.tight"),  # EpochInput -> core; SPP, slips -> gnss
     ("io/prepare.py", "jaxnav.sim"),  # broadcast ephemerides -> gnss
 }

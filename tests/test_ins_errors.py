@@ -13,7 +13,7 @@ from jax.scipy.linalg import expm
 
 import jaxnav  # noqa: F401  (enables float64)
 from jaxnav import attitude, geodesy
-from jaxnav.filter.states import INS15, INS21, INS27
+from jaxnav.core.states import INS15, INS21, INS27
 from jaxnav.ins import errors, strapdown
 
 MODEL = errors.ImuErrorModel(

@@ -20,8 +20,8 @@ import pytest
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import attitude, geodesy
+from jaxnav.core.states import INS27
 from jaxnav.filter import loose
-from jaxnav.filter.states import INS27
 from jaxnav.filter.systems import InsSystem, NavSigmas
 from jaxnav.ins import strapdown
 from jaxnav.io import pos as pos_io

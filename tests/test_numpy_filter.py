@@ -24,8 +24,8 @@ import pytest
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
+from jaxnav.core.states import INS21
 from jaxnav.filter import tight
-from jaxnav.filter.states import INS21
 from jaxnav.filter.systems import InsSystem
 from jaxnav.gnss import ppp
 from jaxnav.study.factory import SimFactory

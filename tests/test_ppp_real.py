@@ -34,8 +34,8 @@ import pytest
 
 import jaxnav  # noqa: F401
 from jaxnav import geodesy
+from jaxnav.core.states import StateLayout
 from jaxnav.filter import ppp_only
-from jaxnav.filter.states import StateLayout
 from jaxnav.gnss import corrections, models, ppp, signals
 from jaxnav.io import prepare as prep_mod
 

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 import jaxnav  # noqa: F401
+from jaxnav.core.states import INS15
 from jaxnav.filter import systems, tight
-from jaxnav.filter.states import INS15
 from jaxnav.gnss import models, ppp, signals
+from jaxnav.gnss import modes as ppp_modes
 from jaxnav.ins import errors as ins_errors
 from jaxnav.ins import riss, strapdown
 
@@ -69,7 +70,7 @@ def _systems():
     return [("riss", rs, nav_r, rs.idle_inputs(nav_r)), ("ins", ins, nav_i, mean_i)]
 
 
-@pytest.mark.parametrize("mode", models.MODES)
+@pytest.mark.parametrize("mode", ppp_modes.MODES)
 @pytest.mark.parametrize("bssd", [False, True])
 def test_rows_match_autodiff(mode, bssd):
     if mode == "ic_ppp" and bssd:

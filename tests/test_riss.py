@@ -17,7 +17,7 @@ import pytest
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy as geo
 from jaxnav.attitude import dcm_from_euler, wrap_angle
-from jaxnav.filter.states import RISS9, RISS16
+from jaxnav.core.states import RISS9, RISS16
 from jaxnav.ins.riss import (
     RissInput,
     RissSensorErrors,

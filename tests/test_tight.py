@@ -11,6 +11,7 @@ from scipy import stats
 
 import jaxnav  # noqa: F401
 from jaxnav.filter import systems, tight
+from jaxnav.gnss import modes as ppp_modes
 from jaxnav.gnss import ppp
 from jaxnav.sim import scenario, sensors
 from jaxnav.study import metrics, outages
@@ -38,7 +39,7 @@ def _filter(drive, mode):
     pcfg = ppp.PppConfig(
         mode=mode,
         n_slots=int(geo.slots.system.shape[0]),
-        estimate_zwd=mode in ppp.models.PHASE_MODES,
+        estimate_zwd=ppp_modes.get(mode).uses_phase,
     )
     return tight.TightFilter(system, pcfg, geo.slots, 1.0 / cfg.riss_rate_hz, 1.0)
 

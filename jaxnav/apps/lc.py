@@ -78,9 +78,9 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import attitude, geodesy
+from jaxnav.core import states as st
 from jaxnav.filter import constraints as cons
 from jaxnav.filter import loose
-from jaxnav.filter import states as st
 from jaxnav.filter.systems import InsSystem, NavSigmas
 from jaxnav.ins import errors as ins_errors
 from jaxnav.ins import strapdown

@@ -41,6 +41,7 @@ import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
 from jaxnav.filter import ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
+from jaxnav.gnss import modes as ppp_modes
 from jaxnav.gnss import ppp
 from jaxnav.io import pos as pos_io
 from jaxnav.io import prepare as prep_mod
@@ -89,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ref", type=_parse_xyz, help="reference ECEF X,Y,Z [m] for the statistics")
     p.add_argument(
         "--ppp-mode",
-        choices=ppp.models.MODES,
+        choices=ppp_modes.MODES,
         help="override the PPP flavour (default float_ppp for dual, sf_code single)",
     )
     p.add_argument("--elevation-mask", type=float, default=10.0, help="degrees (default 10)")

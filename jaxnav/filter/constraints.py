@@ -1,7 +1,7 @@
 """Vehicle constraints and stationary updates for the full IMU: NHC, odometer, ZUPT, ZARU.
 
 Every builder returns measurement ``Rows`` (dz, H, R, mask) over a given state layout, with the
-jaxnav conventions of ``filter/states.py``: dz = h(x_hat) - z, error = estimated - true, attitude
+jaxnav conventions of ``core/states.py``: dz = h(x_hat) - z, error = estimated - true, attitude
 error eps with C_hat = (I - [eps x]) C. They are pure functions of the navigation quantities, so
 the filters stack them with the GNSS rows and run one ``ekf.masked_update``.
 
@@ -70,7 +70,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from jaxnav import attitude, geodesy
-from jaxnav.filter.states import StateLayout
+from jaxnav.core.states import StateLayout
 from jaxnav.ins import errors as ins_errors
 from jaxnav.ins import strapdown
 

@@ -57,9 +57,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import attitude, geodesy
+from jaxnav.core.states import StateLayout
 from jaxnav.filter import constraints as cons
 from jaxnav.filter import ekf
-from jaxnav.filter.states import StateLayout
 from jaxnav.filter.systems import InsSystem, NavSigmas
 from jaxnav.ins import errors as ins_errors
 from jaxnav.ins import strapdown

@@ -16,7 +16,7 @@ Motion models (``GnssOnlySystem.model``):
   (white acceleration of PSD ``accel_psd_m2_s3``); layout ``pos, vel``; Doppler rows then
   observe the velocity. Offered for vehicles; not used for the reference-station validation.
 
-States follow filter/states.py: position errors geodetic (d_lat, d_lon, d_h), velocity errors
+States follow core/states.py: position errors geodetic (d_lat, d_lon, d_h), velocity errors
 ENU, dx = estimate - truth, closed-loop feedback x <- x - dx. The position PSD is given in
 metres and converted per axis with the radii of curvature.
 
@@ -32,7 +32,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from jaxnav import geodesy
-from jaxnav.filter.states import StateLayout
+from jaxnav.core.states import StateLayout
 from jaxnav.filter.systems import NavSigmas
 from jaxnav.gnss.ppp import Receiver
 

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxnav import attitude, geodesy
-from jaxnav.filter.states import INS15, RISS16, StateLayout
+from jaxnav.core.states import INS15, RISS16, StateLayout
 from jaxnav.gnss.ppp import Receiver
 from jaxnav.ins import errors as ins_errors
 from jaxnav.ins import riss, riss_errors, strapdown

@@ -28,8 +28,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxnav import geodesy
+from jaxnav.core.states import StateLayout
 from jaxnav.filter import constraints, ekf
-from jaxnav.filter.states import StateLayout
 from jaxnav.filter.systems import NavSigmas
 from jaxnav.gnss import corrections, models, ppp
 
@@ -121,7 +121,7 @@ def initial_carry(
         rx = tf.system.antenna(nav0, tf.system.idle_inputs(nav0), sensors, layout)
         geo = models.geometry(rx.pos_ecef, rx.vel_ecef, obs0.sat)
         cmb = ppp.combos(tf.slots, obs0)
-        code = cmb.code_corr_m[:, 0] if tf.cfg.mode == "sf_code" else cmb.code_if_m
+        code = tf.cfg.model.clock_code(cmb)
         resid = jnp.where(obs0.available, code - geo.range_m + obs0.sat.clock_m, jnp.nan)
         gnss_est = gnss_est.at[layout.i("clock_bias")].set(jnp.nan_to_num(jnp.nanmedian(resid)))
     S = tf.cfg.n_slots
@@ -161,28 +161,15 @@ def _slot_usable(tf: TightFilter, rx: ppp.Receiver, obs: ppp.GnssObs, keep):
 
 
 def _reset_slots(tf: TightFilter, layout, gnss_est, P, obs: ppp.GnssObs, restart, el):
-    """Re-initialise per-slot ambiguity / ionosphere states of restarted slots from the code
-    (IC-PPP: the slant ionosphere from the model, ``PppConfig.iono_constraint``)."""
+    """Re-initialise the mode's per-slot states (ambiguities, slant ionosphere) of restarted
+    slots: variances from the mode's ``reset_variance`` or the initial ones, values from its
+    ``reset_values`` (e.g. an ambiguity from phase minus code)."""
     cfg = tf.cfg
-    iono_var = None
-    if cfg.mode == "ic_ppp" and cfg.iono_constraint == "prior":
-        iono_var = ppp.iono_model_var(cfg, obs.iono_model_l1_m, el)
-    flags, var = ppp.slot_state_resets(cfg, layout, restart, iono_var)
+    mode = cfg.model
+    flags, var = ppp.slot_state_resets(cfg, layout, restart, mode.reset_variance(cfg, obs, el))
     _, P = ekf.reset_states(jnp.zeros(layout.size), P, flags, var)
     cmb = ppp.combos(tf.slots, obs)
-    if layout.has("amb"):
-        amb = jnp.where(restart, cmb.phase_if_m - cmb.code_if_m, gnss_est[layout.sl("amb")])
-        gnss_est = gnss_est.at[layout.sl("amb")].set(amb)
-    if layout.has("iono"):
-        iono0 = obs.iono_model_l1_m
-        new = {
-            "iono": iono0,
-            "amb1": obs.phase_m[:, 0] - cmb.code_corr_m[:, 0] + 2.0 * iono0,
-            "amb2": obs.phase_m[:, 1] - cmb.code_corr_m[:, 1] + 2.0 * cmb.gamma * iono0,
-        }
-        for name, value in new.items():
-            cur = gnss_est[layout.sl(name)]
-            gnss_est = gnss_est.at[layout.sl(name)].set(jnp.where(restart, value, cur))
+    gnss_est = mode.reset_values(cfg, layout, obs, cmb, restart, gnss_est)
     return gnss_est, P
 
 
@@ -285,9 +272,8 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput):
     usable, el = _slot_usable(tf, rx, inp.obs, inp.keep)
     restart = usable & (~carry.tracked | inp.obs.slip)
     gnss_est, P = _reset_slots(tf, layout, gnss_est, P, inp.obs, restart, el)
-    hatch = carry.hatch
-    if cfg.mode == "sdf_code":
-        hatch = ppp.hatch_update(cfg, hatch, ppp.combos(tf.slots, inp.obs), usable, restart)
+    hatch = cfg.model.update_memory(cfg, carry.hatch, ppp.combos(tf.slots, inp.obs), usable,
+                                    restart)
 
     rows, _ = ppp.measurement_rows(
         cfg, layout, tf.slots, inp.obs, rx, gnss_est, inp.keep, hatch, inp.day_of_year

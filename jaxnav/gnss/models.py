@@ -5,7 +5,7 @@ without a satellite carry any finite values and are masked by the caller. Jacobi
 with respect to the receiver antenna's ECEF position and velocity; the navigation system maps
 them to its own error states with the antenna Jacobians (``H_nav = dz/dr_e @ dr_e/ddx``).
 
-Sign conventions (filter/states.py): residual dz = h(x_hat) - z and H = dh/dx.
+Sign conventions (core/states.py): residual dz = h(x_hat) - z and H = dh/dx.
 """
 
 from __future__ import annotations
@@ -111,13 +111,3 @@ def single_difference_matrix(n_slots, ref_slot):
     eye = jnp.eye(n_slots)
     D = eye - jnp.zeros((n_slots, n_slots)).at[:, ref_slot].set(1.0)
     return jnp.where((jnp.arange(n_slots) == ref_slot)[:, None], 0.0, D)
-
-
-# ---- PPP modes --------------------------------------------------------------------------------
-
-#: PPP flavours (SEED_SPEC 2.2-2.5): single-frequency code with a model ionosphere; dual-frequency
-#: ionosphere-free code; carrier-smoothed IF code; IF code + carrier with float ambiguities
-#: ("code-carrier"); ionosphere-constrained uncombined P1/P2/L1/L2 with slant-ionosphere states.
-MODES = ("sf_code", "df_code", "sdf_code", "float_ppp", "ic_ppp")
-#: Modes whose carrier phase enters the filter as a measurement with per-slot ambiguities.
-PHASE_MODES = ("float_ppp", "ic_ppp")

@@ -1,59 +1,56 @@
-"""PPP measurement models: GNSS error states, their dynamics, and the rows of every mode.
+"""PPP measurement models: the GNSS error states, their dynamics, and the rows of an epoch.
 
-One configuration (:class:`PppConfig`) selects the flavour; the same epoch step in
-``filter/tight.py`` uses the returned (residual, H, R, mask) for any of them:
+One configuration (:class:`PppConfig`) selects the flavour by name; the flavours themselves are
+classes in ``gnss/modes/`` (one module each, behind ``modes.base.AbstractPppMode``; the registry
+``gnss/modes/__init__.py`` lists them: ``sf_code``, ``df_code``, ``sdf_code``, ``float_ppp``,
+``ic_ppp``). This module assembles what every mode shares: the receiver clock, inter-system
+biases for GLONASS and Galileo (S002, S004) and a zenith wet delay, the geometry, troposphere and
+weights, Doppler rows, and between-satellite single differences (S004) as an option. The same
+epoch step in ``filter/tight.py`` uses the returned (residual, H, R, mask) for any mode.
 
-- ``sf_code``   C1 minus a model ionosphere (Klobuchar / GIM), its residual in R (S000, S002).
-- ``df_code``   ionosphere-free P1/P2 code (S000).
-- ``sdf_code``  Hatch-smoothed ionosphere-free code (S000 eqs 4.48-4.59 as a growing window,
-                capped at ``hatch_window`` epochs and restarted whenever the slot loses phase).
-- ``float_ppp`` IF code + IF carrier with a float ambiguity per slot in metres (S002/S003/S004).
-- ``ic_ppp``    uncombined P1, P2, L1, L2 with per-slot slant ionosphere, L1 and L2 ambiguities,
-                a receiver DCB and GIM pseudo-observations (S001 eqs 1-9).
-plus Doppler rows in every mode, inter-system bias states for GLONASS and Galileo (S002, S004),
-a zenith wet delay state, and between-satellite single differences (S004) as an option.
-
-Conventions: residual dz = h(x_hat) - z, H = dh/dx (filter/states.py). The GNSS states hold
+Conventions: residual dz = h(x_hat) - z, H = dh/dx (core/states.py). The GNSS states hold
 totals in ``gnss_est`` (a vector in the GNSS part of the layout) and errors in the filter's x.
 All per-slot arrays are [S]; masks select what is used.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import equinox as eqx
 import jax.numpy as jnp
 
 from jaxnav import geodesy
-from jaxnav.filter.states import StateLayout
+from jaxnav.core.states import StateLayout
 from jaxnav.gnss import corrections, models, signals
+from jaxnav.gnss import modes as ppp_modes
+from jaxnav.gnss.modes.base import RowContext, column, iono_model_var
+from jaxnav.gnss.modes.ic_ppp import iono_rw_sigma
+from jaxnav.gnss.modes.sdf_code import hatch_update
+from jaxnav.gnss.ppp_data import (
+    KIND_CODE,
+    KIND_DOPPLER,
+    KIND_IONO,
+    KIND_PHASE,
+    Combos,
+    GnssObs,
+    HatchState,
+    Receiver,
+    Rows,
+    SlotInfo,
+    combos,
+)
+
+#: Re-exported for callers that use ``ppp.<name>`` (they live in ppp_data and the modes).
+__all__ = [
+    "KIND_CODE", "KIND_DOPPLER", "KIND_IONO", "KIND_PHASE", "Combos", "GnssObs", "HatchState",
+    "PppConfig", "Receiver", "Rows", "SlotInfo", "combos", "gnss_blocks", "gnss_dynamics",
+    "gnss_initial_std", "hatch_update", "iono_model_var", "iono_rw_sigma", "measurement_rows",
+    "slot_state_resets",
+]
 
 _CLOCK_H0 = 2.0e-19  # S001 eq 16 (Brown & Hwang), white frequency noise
 _CLOCK_H_M2 = 2.0e-20  # random-walk frequency noise
 _CLOCK_K = 4.0  # S001's empirical inflation
 _SQRT_H = 60.0  # sqrt(3600 s): converts "per sqrt(hour)" to "per sqrt(second)"
-
-
-class SlotInfo(NamedTuple):
-    """Static description of the satellite slots of a scenario (one entry per slot)."""
-
-    system: jnp.ndarray  # [S] int: signals.SYS_GPS / SYS_GLO / SYS_GAL
-    f1_hz: jnp.ndarray  # [S] first PPP frequency (GLONASS: FDMA channel dependent)
-    f2_hz: jnp.ndarray  # [S] second PPP frequency
-
-
-class GnssObs(NamedTuple):
-    """One epoch of observations and products, per slot [S] (band index 0 = f1, 1 = f2)."""
-
-    code_m: jnp.ndarray  # [S, 2] pseudoranges (C1 or P1, P2) [m]
-    phase_m: jnp.ndarray  # [S, 2] carrier phase times wavelength [m]
-    range_rate_m_s: jnp.ndarray  # [S] f1 Doppler as range rate, -lambda1 * D_Hz [m/s]
-    available: jnp.ndarray  # [S] bool: all signals of the slot tracked this epoch
-    slip: jnp.ndarray  # [S] bool: loss of lock / cycle slip flagged this epoch
-    code_bias_m: jnp.ndarray  # [S, 2] known satellite code biases w.r.t. the clock datum [m]
-    iono_model_l1_m: jnp.ndarray  # [S] model (broadcast / GIM) slant f1 ionosphere [m]
-    sat: models.SatEpoch
 
 
 class PppConfig(eqx.Module):
@@ -119,18 +116,20 @@ class PppConfig(eqx.Module):
     dcb_init_sigma_m: float = 10.0
 
     def __check_init__(self):
-        if self.mode not in models.MODES:
-            raise ValueError(f"unknown PPP mode {self.mode!r}; expected one of {models.MODES}")
-        if self.mode == "ic_ppp" and self.bssd:
-            raise ValueError("ic_ppp with between-satellite differences is not supported")
+        ppp_modes.get(self.mode).check(self)  # the name is registered, the mode can run this
         if self.iono_constraint not in ("prior", "epoch"):
             raise ValueError(
                 f"iono_constraint = {self.iono_constraint!r}: expected 'prior' or 'epoch'"
             )
 
     @property
+    def model(self) -> ppp_modes.AbstractPppMode:
+        """The mode's class instance (rows, blocks, resets: ``gnss/modes/``)."""
+        return ppp_modes.get(self.mode)
+
+    @property
     def uses_phase(self) -> bool:
-        return self.mode in models.PHASE_MODES
+        return self.model.uses_phase
 
 
 _ISB_BLOCK = {signals.SYS_GLO: "isb_glo", signals.SYS_GAL: "isb_gal"}
@@ -148,24 +147,17 @@ def gnss_blocks(cfg: PppConfig, have_clock: bool = False) -> tuple[tuple[str, in
     blocks += [(_ISB_BLOCK[s], 1) for s in cfg.systems if s in _ISB_BLOCK]
     if cfg.estimate_zwd:
         blocks.append(("zwd", 1))
-    if cfg.mode == "float_ppp":
-        blocks.append(("amb", S))
-    elif cfg.mode == "ic_ppp":
-        blocks += [("amb1", S), ("amb2", S), ("iono", S), ("dcb", 1)]
+    blocks += [(b.name, S if b.per_slot else 1) for b in cfg.model.blocks]
     return tuple(blocks)
-
-
-def iono_rw_sigma(cfg: PppConfig, elevation_rad):
-    """S001 eq 5: q_ion = sigma for E >= 30 deg, sigma / (2 sin E) below [m/sqrt(h)]."""
-    return models.elevation_sigma(cfg.iono_sigma_m_sqrt_h, elevation_rad)
 
 
 def gnss_dynamics(cfg: PppConfig, layout: StateLayout, elevation_rad, skip=()):
     """Continuous F and diagonal process-noise PSD q (n-vector) of the GNSS blocks in ``layout``.
 
-    Clock: bias' = drift, PSDs of S001 eq 16; ISB, ZWD, slant ionosphere and DCB: random walks;
-    ambiguities: constants. Blocks absent from ``layout`` or named in ``skip`` (modelled by the
-    navigation system, e.g. the clock of seed 000's 16-state RISS) are left zero.
+    Clock: bias' = drift, PSDs of S001 eq 16; ISB and ZWD: random walks; the mode's blocks as
+    its ``process_noise`` says (ambiguities: constants). Blocks absent from ``layout`` or named
+    in ``skip`` (modelled by the navigation system, e.g. the clock of seed 000's 16-state RISS)
+    are left zero.
     """
     n = layout.size
     F = jnp.zeros((n, n))
@@ -179,9 +171,7 @@ def gnss_dynamics(cfg: PppConfig, layout: StateLayout, elevation_rad, skip=()):
             q = q.at[layout.i(name)].set(cfg.isb_psd_m2_s)
     if layout.has("zwd"):
         q = q.at[layout.i("zwd")].set(cfg.zwd_psd_m2_s)
-    if layout.has("iono"):
-        q = q.at[layout.sl("iono")].set((iono_rw_sigma(cfg, elevation_rad) / _SQRT_H) ** 2)
-        q = q.at[layout.i("dcb")].set((cfg.dcb_sigma_m_sqrt_h / _SQRT_H) ** 2)
+    q = cfg.model.process_noise(cfg, layout, elevation_rad, q)
     return F, q
 
 
@@ -194,11 +184,7 @@ def gnss_initial_std(cfg: PppConfig, layout: StateLayout):
         "isb_glo": cfg.isb_init_sigma_m,
         "isb_gal": cfg.isb_init_sigma_m,
         "zwd": cfg.zwd_init_sigma_m,
-        "amb": cfg.ambiguity_init_sigma_m,
-        "amb1": cfg.ambiguity_init_sigma_m,
-        "amb2": cfg.ambiguity_init_sigma_m,
-        "iono": cfg.iono_init_sigma_m,
-        "dcb": cfg.dcb_init_sigma_m,
+        **{b.name: getattr(cfg, b.init_sigma) for b in cfg.model.blocks},
     }
     for name, sigma in init.items():
         if layout.has(name):
@@ -206,127 +192,24 @@ def gnss_initial_std(cfg: PppConfig, layout: StateLayout):
     return std
 
 
-_PER_SLOT_BLOCKS = ("amb", "amb1", "amb2", "iono")
-
-
-def iono_model_var(cfg: PppConfig, iono_model_l1_m, elevation_rad):
-    """Variance [m^2] of the model (broadcast / GIM) slant L1 ionosphere:
-    (fraction * I_model)^2 + (floor * s(E))^2, s(E) the S001 eq 11 elevation factor."""
-    floor = models.elevation_sigma(cfg.iono_model_residual_floor_m, elevation_rad)
-    return (cfg.iono_model_residual_fraction * iono_model_l1_m) ** 2 + floor**2
-
-
-def slot_state_resets(cfg: PppConfig, layout: StateLayout, reset_slot, iono_var=None):
+def slot_state_resets(cfg: PppConfig, layout: StateLayout, reset_slot, variances=None):
     """Per-state reset flags and variances for slots that rose, slipped or returned ([S] bool).
 
-    The variances are the initial ones of ``gnss_initial_std`` on the per-slot blocks; with
-    ``iono_var`` [S] (IC-PPP, ``iono_constraint = "prior"``) the slant ionosphere restarts at
-    the model's variance instead.
+    The variances are the initial ones of ``gnss_initial_std`` on the mode's per-slot blocks,
+    except the blocks named in ``variances`` ({name: [S]}, the mode's ``reset_variance``: e.g.
+    IC-PPP's slant ionosphere at the model's variance).
     """
     flags = jnp.zeros(layout.size, bool)
     in_block = jnp.zeros(layout.size, bool)
-    for name in _PER_SLOT_BLOCKS:
-        if layout.has(name):
-            flags = flags.at[layout.sl(name)].set(reset_slot)
-            in_block = in_block.at[layout.sl(name)].set(True)
+    for b in cfg.model.blocks:
+        if b.per_slot and layout.has(b.name):
+            flags = flags.at[layout.sl(b.name)].set(reset_slot)
+            in_block = in_block.at[layout.sl(b.name)].set(True)
     var = jnp.where(in_block, gnss_initial_std(cfg, layout) ** 2, 0.0)
-    if iono_var is not None and layout.has("iono"):
-        var = var.at[layout.sl("iono")].set(iono_var)
+    for name, v in (variances or {}).items():
+        if layout.has(name):
+            var = var.at[layout.sl(name)].set(v)
     return flags, var
-
-
-class Combos(NamedTuple):
-    """Per-slot observation combinations shared by the row builders."""
-
-    alpha: jnp.ndarray  # [S] IF weight of f1
-    beta: jnp.ndarray  # [S] IF weight of f2 (alpha + beta = 1)
-    gamma: jnp.ndarray  # [S] (f1/f2)^2
-    code_if_m: jnp.ndarray  # [S]
-    phase_if_m: jnp.ndarray  # [S]
-    code_corr_m: jnp.ndarray  # [S, 2] bias-corrected raw codes
-
-
-def combos(slots: SlotInfo, obs: GnssObs) -> Combos:
-    """Ionosphere-free code and phase after removing the known satellite code biases."""
-    alpha, beta = signals.if_coefficients(slots.f1_hz, slots.f2_hz)
-    code = obs.code_m - obs.code_bias_m
-    return Combos(
-        alpha,
-        beta,
-        (slots.f1_hz / slots.f2_hz) ** 2,
-        alpha * code[:, 0] + beta * code[:, 1],
-        alpha * obs.phase_m[:, 0] + beta * obs.phase_m[:, 1],
-        code,
-    )
-
-
-class HatchState(NamedTuple):
-    """Per-slot carrier-smoothing memory (S000 eqs 4.48-4.59 as a recursive Hatch filter)."""
-
-    smoothed_m: jnp.ndarray  # [S] smoothed IF code
-    prev_phase_m: jnp.ndarray  # [S] IF phase at the previous epoch
-    count: jnp.ndarray  # [S] epochs in the current window (0 = restart)
-
-    @classmethod
-    def empty(cls, n_slots):
-        z = jnp.zeros(n_slots)
-        return cls(z, z, z)
-
-
-def hatch_update(cfg: PppConfig, state: HatchState, cmb: Combos, tracked, restart):
-    """Hatch: P_bar_k = P_k/n + (n-1)/n (P_bar_{k-1} + Phi_k - Phi_{k-1}), n = min(k, N) (SEED 2.4).
-
-    ``tracked`` slots advance; ``restart`` (rise, slip, return after an outage) sets n = 1.
-    Untracked slots keep count 0 so their next epoch restarts the window.
-    """
-    n = jnp.where(restart, 1.0, jnp.minimum(state.count + 1.0, cfg.hatch_window))
-    propagated = state.smoothed_m + cmb.phase_if_m - state.prev_phase_m
-    smoothed = cmb.code_if_m / n + (n - 1.0) / n * propagated
-    return HatchState(
-        jnp.where(tracked, smoothed, state.smoothed_m),
-        jnp.where(tracked, cmb.phase_if_m, state.prev_phase_m),
-        jnp.where(tracked, n, 0.0),
-    )
-
-
-class Receiver(NamedTuple):
-    """The antenna as the navigation system predicts it, with Jacobians w.r.t. the full dx."""
-
-    pos_ecef: jnp.ndarray  # [3]
-    vel_ecef: jnp.ndarray  # [3]
-    llh: jnp.ndarray  # [3]
-    J_pos: jnp.ndarray  # [3, n] d(pos_ecef)/d(dx)
-    J_vel: jnp.ndarray  # [3, n] d(vel_ecef)/d(dx)
-
-
-class Rows(NamedTuple):
-    """Stacked measurement rows of one epoch: residual dz = h(x_hat) - z, H, R, mask."""
-
-    dz: jnp.ndarray  # [m]
-    H: jnp.ndarray  # [m, n]
-    R: jnp.ndarray  # [m, m]
-    mask: jnp.ndarray  # [m] bool
-    slot: jnp.ndarray  # [m] int: slot of each row (-1 for none)
-    kind: jnp.ndarray  # [m] int: 0 code, 1 phase, 2 Doppler, 3 ionosphere pseudo-observation
-
-
-KIND_CODE, KIND_PHASE, KIND_DOPPLER, KIND_IONO = 0, 1, 2, 3
-
-
-def _column(layout: StateLayout, name, n_rows, values=1.0):
-    """[n_rows, n] block with ``values`` in column ``name`` (zeros if the layout lacks it)."""
-    out = jnp.zeros((n_rows, layout.size))
-    if layout.has(name):
-        out = out.at[:, layout.i(name)].set(values)
-    return out
-
-
-def _per_slot(layout: StateLayout, name, values):
-    """[S, n] block with values[i] at (i, first index of block ``name`` + i)."""
-    S = values.shape[0]
-    out = jnp.zeros((S, layout.size))
-    start = layout.sl(name).start
-    return out.at[jnp.arange(S), start + jnp.arange(S)].set(values)
 
 
 def _block_value(layout, gnss_est, name, default=0.0):
@@ -388,12 +271,12 @@ def measurement_rows(
     # Geometry and common columns.
     u_pos = models.range_jacobian(geo)  # [S, 3] d(range)/d(r_rx) = -u^T
     H_geo = u_pos @ rx.J_pos
-    H_common = H_geo + _column(layout, "clock_bias", S)
+    H_common = H_geo + column(layout, "clock_bias", S)
     for sys, name in _ISB_BLOCK.items():
         if layout.has(name):
-            H_common = H_common + _column(layout, name, S, (slots.system == sys).astype(float))
+            H_common = H_common + column(layout, name, S, (slots.system == sys).astype(float))
     if layout.has("zwd"):
-        H_common = H_common + _column(layout, "zwd", S, m_w)
+        H_common = H_common + column(layout, "zwd", S, m_w)
 
     cmb = combos(slots, obs)
     sig_scale = models.elevation_sigma(1.0, el)
@@ -403,47 +286,27 @@ def measurement_rows(
     if_noise = jnp.sqrt(cmb.alpha**2 + cmb.beta**2)
     geo_pred = geo.range_m + rx_clock + trop
 
-    blocks = []  # (dz, H, var, mask, kind)
-    iono_var = iono_model_var(cfg, obs.iono_model_l1_m, el)
-    prod = cfg.product_sigma_m**2  # not amplified by the IF combination: added after it
-    if cfg.mode == "sf_code":
-        z = cmb.code_corr_m[:, 0] - obs.iono_model_l1_m
-        blocks.append((geo_pred - z, H_common, code_sigma**2 + iono_var + prod, usable, KIND_CODE))
-    elif cfg.mode in ("df_code", "float_ppp"):
-        var = (code_sigma * if_noise) ** 2 + prod
-        blocks.append((geo_pred - cmb.code_if_m, H_common, var, usable, KIND_CODE))
-    elif cfg.mode == "sdf_code":
-        n = jnp.maximum(hatch.count, 1.0)
-        frac = jnp.maximum(1.0 / jnp.sqrt(n), cfg.sdf_sigma_floor_fraction)
-        var = (code_sigma * if_noise * frac) ** 2 + prod
-        blocks.append((geo_pred - hatch.smoothed_m, H_common, var, usable, KIND_CODE))
-    if cfg.mode == "float_ppp":
-        amb = gnss_est[layout.sl("amb")]
-        H_phase = H_common + _per_slot(layout, "amb", jnp.ones(S))
-        var = (phase_sigma * if_noise) ** 2 + prod
-        blocks.append((geo_pred + amb - cmb.phase_if_m, H_phase, var, usable, KIND_PHASE))
-    if cfg.mode == "ic_ppp":
-        iono = gnss_est[layout.sl("iono")]
-        dcb = gnss_est[layout.i("dcb")]
-        H_iono = _per_slot(layout, "iono", jnp.ones(S))
-        # With the clock absorbing the IF receiver code bias, P1 keeps beta DCB and P2 -alpha
-        # DCB (DCB = b1 - b2); phase receiver biases are absorbed by the ambiguities.
-        ones = jnp.ones(S)
-        for band, coef, dcb_coef in ((0, ones, cmb.beta), (1, cmb.gamma, -cmb.alpha)):
-            pred = geo_pred + coef * iono + dcb_coef * dcb
-            H = H_common + H_iono * coef[:, None] + _column(layout, "dcb", S, dcb_coef)
-            var = code_sigma**2 + prod
-            blocks.append((pred - cmb.code_corr_m[:, band], H, var, usable, KIND_CODE))
-        for band, coef, amb_name in ((0, ones, "amb1"), (1, cmb.gamma, "amb2")):
-            amb = gnss_est[layout.sl(amb_name)]
-            pred = geo_pred - coef * iono + amb
-            H = H_common - H_iono * coef[:, None] + _per_slot(layout, amb_name, ones)
-            var = phase_sigma**2 + prod
-            blocks.append((pred - obs.phase_m[:, band], H, var, usable, KIND_PHASE))
+    ctx = RowContext(
+        layout=layout,
+        gnss_est=gnss_est,
+        obs=obs,
+        cmb=cmb,
+        hatch=hatch,
+        usable=usable,
+        geo_pred=geo_pred,
+        H_common=H_common,
+        code_sigma=code_sigma,
+        phase_sigma=phase_sigma,
+        if_noise=if_noise,
+        iono_var=iono_model_var(cfg, obs.iono_model_l1_m, el),
+        product_var=cfg.product_sigma_m**2,  # not amplified by the IF combination: added after
+    )
+    mode = cfg.model
+    blocks = [tuple(b) for b in mode.rows(cfg, ctx)]  # (dz, H, var, mask, kind)
     if cfg.doppler:
         drift = _block_value(layout, gnss_est, "clock_drift")
         pred = geo.range_rate_m_s + drift - obs.sat.clock_rate_m_s
-        H = u_pos @ rx.J_vel + _column(layout, "clock_drift", S)
+        H = u_pos @ rx.J_vel + column(layout, "clock_drift", S)
         var = (cfg.doppler_sigma_m_s * sig_scale) ** 2
         blocks.append((pred - obs.range_rate_m_s, H, var, usable, KIND_DOPPLER))
 
@@ -456,19 +319,8 @@ def measurement_rows(
     else:
         diffed = [(dz, H, jnp.diag(var), mask, kind) for dz, H, var, mask, kind in blocks]
 
-    if cfg.mode == "ic_ppp" and cfg.iono_constraint == "epoch":
-        # Model (GIM / broadcast) pseudo-observation of each slant ionosphere, S001 eqs 6-7 (its
-        # local-time/latitude term folded into the residual model above; SEED_SPEC 2.5).
-        iono = gnss_est[layout.sl("iono")]
-        diffed.append(
-            (
-                iono - obs.iono_model_l1_m,
-                _per_slot(layout, "iono", jnp.ones(S)),
-                jnp.diag(iono_var),
-                usable,
-                KIND_IONO,
-            )
-        )
+    # Rows of a state's pseudo-observation (IC-PPP's ionosphere) are never differenced.
+    diffed += [(b.dz, b.H, jnp.diag(b.var), b.mask, b.kind) for b in mode.pseudo_rows(cfg, ctx)]
 
     dz = jnp.concatenate([b[0] for b in diffed])
     H = jnp.concatenate([b[1] for b in diffed])

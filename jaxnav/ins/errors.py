@@ -1,6 +1,6 @@
 """Full-IMU error-state model (F, G, Qc for INS15/21/27), closed-loop feedback, IMU compensation.
 
-Conventions (``jaxnav.filter.states``): error = estimated - true; position errors geodetic
+Conventions (``jaxnav.core.states``): error = estimated - true; position errors geodetic
 (d_lat [rad], d_lon [rad], d_h [m]); velocity errors ENU [m/s]; attitude error eps (ENU, rad) with
 C_hat_b_l = (I - [eps x]) C_b_l.
 
@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxnav import attitude, geodesy
-from jaxnav.filter.states import StateLayout
+from jaxnav.core.states import StateLayout
 from jaxnav.ins.strapdown import ImuIncrements, NavState
 
 # Sensor blocks this module knows; any other block of a layout (e.g. GNSS clock, ZWD,

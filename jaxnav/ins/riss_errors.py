@@ -1,6 +1,6 @@
 """RISS error-state models: F, G, Qc for layouts RISS9 (S002) and RISS16 (S000), and feedback.
 
-Error convention (filter/states.py): dx = estimated - true. Position errors are geodetic
+Error convention (core/states.py): dx = estimated - true. Position errors are geodetic
 (rad, rad, m), velocity errors ENU [m/s], the azimuth error is in rad. The sensor states are the
 errors of the *corrected* quantities the mechanization uses:
 - ``gyro_bias_z``, ``accel_bias_x/y``: estimated bias - true bias (they are subtracted from the
@@ -21,7 +21,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from jaxnav.attitude import wrap_angle
-from jaxnav.filter.states import RISS9, RISS16, StateLayout
+from jaxnav.core.states import RISS9, RISS16, StateLayout
 from jaxnav.geodesy import C_LIGHT, OMEGA_E, normal_gravity, radii
 from jaxnav.ins.riss import (
     RissInput,

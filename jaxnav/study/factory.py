@@ -42,9 +42,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.states import INS15, INS21, RISS9, RISS16
 from jaxnav.filter import cascade, loose, systems, tight
-from jaxnav.filter.states import INS15, INS21, RISS9, RISS16
-from jaxnav.gnss import models, ppp, signals
+from jaxnav.gnss import modes as ppp_modes
+from jaxnav.gnss import ppp, signals
 from jaxnav.sim import constellation, observations, scenario, sensors
 from jaxnav.study import metrics
 from jaxnav.study.sweep import Problem, Timeline, tight_ops
@@ -87,7 +88,7 @@ _STATIC_CALIBRATION_EPOCHS = 30  # the drives start with a 60 s standstill
 class SimFactory:
     """Builds sweep problems from simulated drives (module docstring)."""
 
-    modes = models.MODES
+    modes = ppp_modes.MODES
     systems = SYSTEMS
 
     def __init__(self, table: dict | None = None):
@@ -198,7 +199,7 @@ class SimFactory:
             mode=mode,
             systems=cfg.systems,
             n_slots=int(geo.slots.system.shape[0]),
-            estimate_zwd=mode in models.PHASE_MODES,
+            estimate_zwd=ppp_modes.get(mode).uses_phase,
             bssd=self.bssd,
             iono_model_residual_fraction=self.iono_model_fraction,
         )
@@ -244,7 +245,7 @@ class SimFactory:
         geo = self.geo
         tf = self.filter(mode, system_name)
         grade = self.cfg.imu_grade if system_name.startswith("riss") else self.ins_grade
-        real = _realize(self, int(seed), mode == "sf_code", grade)
+        real = _realize(self, int(seed), ppp_modes.get(mode).single_frequency, grade)
         carry0, inputs = self.start(tf, system_name, real)
         t = geo.truth_ep
         truth = metrics.track(t.llh[1:], t.vel_enu[1:], t.euler[1:])

@@ -38,10 +38,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import geodesy
-from jaxnav.filter import states
+from jaxnav.core import states
 
 # P_nav (filter.tight.EpochOutput) is the leading navigation block: pos (d_lat, d_lon, d_h), vel
-# ENU, then attitude / azimuth. Every layout in filter.states starts that way.
+# ENU, then attitude / azimuth. Every layout in core.states starts that way.
 _POS = states.INS15.sl("pos")
 _VEL = states.INS15.sl("vel")
 for _layout in (states.INS21, states.INS27, states.RISS16, states.RISS9):

@@ -1,0 +1,1 @@
+"""Contracts every layer may import: state layouts (``core/states.py``)."""

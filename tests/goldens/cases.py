@@ -1,0 +1,80 @@
+"""Golden filter runs: every PPP mode and variant on one short simulated drive (issue 15).
+
+Each case runs the tight filter over a 3-minute simulated drive (60 s static start, then
+moving), one noise realisation, and keeps its per-epoch solution and diagnostics. The arrays were
+recorded from main before the PPP-mode refactor (``python tests/goldens/cases.py`` rewrites
+``ppp_modes.npz``); ``tests/test_goldens.py`` checks that the code still gives them. Rewrite the
+file only for a change meant to alter the numbers, and say by how much and why in the commit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import numpy as np
+
+import jaxnav  # noqa: F401  (float64)
+from jaxnav.filter import tight
+from jaxnav.study.factory import SimFactory
+
+GOLDEN = Path(__file__).with_name("ppp_modes.npz")
+DRIVE = {"duration_s": 180.0, "drive_style": "mixed", "drive_seed": 3}
+SEED = 5
+
+#: case -> (scenario additions, mode, system, PppConfig replacements)
+CASES = {
+    "sf_code/riss9": ({}, "sf_code", "riss9", {}),
+    "df_code/riss9": ({}, "df_code", "riss9", {}),
+    "sdf_code/riss9": ({}, "sdf_code", "riss9", {}),
+    "float_ppp/riss9": ({}, "float_ppp", "riss9", {}),
+    "ic_ppp/riss9": ({}, "ic_ppp", "riss9", {}),
+    "ic_ppp-epoch/riss9": ({}, "ic_ppp", "riss9", {"iono_constraint": "epoch"}),
+    "float_ppp/riss": ({}, "float_ppp", "riss", {}),
+    "float_ppp/ins15": ({}, "float_ppp", "ins15", {}),
+    "float_ppp-bssd/riss9": ({"bssd": True}, "float_ppp", "riss9", {}),
+    "df_code-bssd/riss9": ({"bssd": True}, "df_code", "riss9", {}),
+    "float_ppp-gre/riss9": ({"constellations": ["gps", "glonass", "galileo"]}, "float_ppp",
+                            "riss9", {}),
+}
+FIELDS = ("llh", "vel_enu", "euler", "P_nav_diag", "P_nav_final", "nis", "dof", "used_by_kind",
+          "gated_by_kind", "clock_bias_m")
+
+_FACTORIES: dict[str, SimFactory] = {}
+_RUN = eqx.filter_jit(tight.run)
+
+
+def run_case(name: str) -> dict[str, np.ndarray]:
+    """The per-epoch outputs of one case, as numpy arrays named by ``FIELDS``."""
+    extra, mode, system, replace = CASES[name]
+    key = repr(sorted(extra.items()))
+    if key not in _FACTORIES:
+        _FACTORIES[key] = SimFactory({**DRIVE, **extra})
+    prob = _FACTORIES[key].build(None, mode, system, SEED)
+    tf = prob.tf
+    if replace:
+        tf = eqx.tree_at(lambda f: f.cfg, tf, dataclasses.replace(tf.cfg, **replace))
+    _, out = _RUN(tf, prob.carry0, prob.inputs)
+    out = jax.device_get(out)
+    arrays = {f: np.asarray(getattr(out, f)) for f in FIELDS if hasattr(out, f)}
+    P = np.asarray(out.P_nav)  # the diagonal per epoch and the whole matrix at the end
+    arrays["P_nav_diag"], arrays["P_nav_final"] = np.diagonal(P, axis1=1, axis2=2), P[-1]
+    return arrays
+
+
+def main() -> int:
+    arrays = {}
+    for name in CASES:
+        for field, value in run_case(name).items():
+            arrays[f"{name}:{field}"] = value
+        print(name, "final llh", arrays[f"{name}:llh"][-1])
+    np.savez_compressed(GOLDEN, **arrays)
+    print(f"wrote {GOLDEN} ({GOLDEN.stat().st_size / 1e3:.0f} kB)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
