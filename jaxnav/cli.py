@@ -1,4 +1,4 @@
-"""``jaxnav`` command line: demo, sweep, ppp, lc."""
+"""``jaxnav`` command line: demo, sweep, ppp, lc, list."""
 
 from __future__ import annotations
 
@@ -67,6 +67,32 @@ def _sweep(args) -> int:
     return _run_study(cfg, Path(args.out), args.resume, args.overwrite)
 
 
+def _first_line(obj) -> str:
+    return (obj.__doc__ or "").strip().splitlines()[0] if obj.__doc__ else ""
+
+
+def _list(args) -> int:
+    """Print what a registry holds: the names a study TOML or a command line may use."""
+    if args.what == "modes":
+        from jaxnav.gnss import modes
+
+        for name, cls in modes.REGISTRY.items():
+            doc = _first_line(importlib.import_module(cls.__module__))
+            print(f"{name:10s} {doc.split(': ', 1)[-1]}")
+    elif args.what == "systems":
+        from jaxnav.study.factory import SimFactory
+
+        for name in SimFactory.systems:
+            print(name)
+    else:
+        from jaxnav.sim import sensors
+
+        for kind, table in (("imu", sensors.IMU_GRADES), ("odometer", sensors.ODOMETERS)):
+            for name, make in table.items():
+                print(f"{kind:8s} {name:18s} {make().name}")
+    return 0
+
+
 def _delegate(module: str):
     def run(args) -> int:
         return importlib.import_module(f"jaxnav.apps.{module}").main(args.rest)
@@ -90,6 +116,10 @@ def main(argv=None) -> int:
     p.add_argument("--resume", action="store_true", help="reuse completed chunks in --out")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result")
     p.set_defaults(func=_sweep)
+
+    p = sub.add_parser("list", help="what the registries hold: PPP modes, systems, presets")
+    p.add_argument("what", choices=("modes", "systems", "presets"))
+    p.set_defaults(func=_list)
 
     for name, text in (
         ("ppp", "post-processed PPP on RINEX data (see `jaxnav ppp --help`)"),

@@ -76,3 +76,18 @@ def test_real_data_commands_are_wired(command, capsys):
         cli.main([command, "--help"])
     assert exc.value.code == 0
     assert f"jaxnav {command}" in capsys.readouterr().out
+
+
+def test_list_prints_what_the_registries_hold(capsys):
+    from jaxnav.gnss import modes
+    from jaxnav.sim import sensors
+    from jaxnav.study.factory import SimFactory
+
+    for what, names in (("modes", modes.MODES), ("systems", SimFactory.systems),
+                        ("presets", (*sensors.IMU_GRADES, *sensors.ODOMETERS))):
+        assert cli.main(["list", what]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert [ln.split()[1 if what == "presets" else 0] for ln in lines] == list(names), what
+    with pytest.raises(SystemExit) as e:
+        cli.main(["list", "grades"])
+    assert e.value.code == 2

@@ -24,7 +24,10 @@ from jaxnav.study.factory import SimFactory
         ({"drive_style": "rally"}, ["drive_style", "rally", "airborne"]),
         ({"duration_s": "long"}, ["duration_s", "long", "float"]),
         ({"bssd": "yes"}, ["bssd", "bool"]),
-        ({"ins_grade": "nope"}, ["nope", "does not exist"]),
+        ({"ins_grade": "nope"}, ["ins_grade", "nope", "span_cpt"]),
+        # a module attribute is not a preset (it used to pass a hasattr check on sim.sensors)
+        ({"imu_grade": "__name__"}, ["imu_grade", "__name__", "crossbow_imu300cc"]),
+        ({"odometer": "math"}, ["odometer", "math", "obd2_odometer"]),
         ({"iono_model": "nequick"}, ["iono_model", "nequick", "gim"]),
     ],
 )

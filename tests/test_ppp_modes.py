@@ -13,7 +13,7 @@ from jaxnav.gnss.modes.base import AbstractPppMode, Block
 
 
 def test_registry_names_are_the_classes_names():
-    assert modes.MODES == ("sf_code", "df_code", "sdf_code", "float_ppp", "ic_ppp")
+    assert modes.MODES == ("sf_code", "df_code", "sdf_code", "float_ppp", "ic_ppp", "sf_ppp")
     for name, cls in modes.REGISTRY.items():
         assert cls.name == name and issubclass(cls, AbstractPppMode)
 

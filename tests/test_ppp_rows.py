@@ -73,8 +73,8 @@ def _systems():
 @pytest.mark.parametrize("mode", ppp_modes.MODES)
 @pytest.mark.parametrize("bssd", [False, True])
 def test_rows_match_autodiff(mode, bssd):
-    if mode == "ic_ppp" and bssd:
-        pytest.skip("ic_ppp has no BSSD form")
+    if bssd and not ppp_modes.REGISTRY[mode].supports_bssd:
+        pytest.skip(f"{mode} has no BSSD form")
     obs, slots = _sky()
     for name, system, nav, mean in _systems():
         cfg = ppp.PppConfig(

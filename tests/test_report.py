@@ -194,7 +194,7 @@ class SimFactory:
                              estimate_zwd=mode in ("float_ppp", "ic_ppp"))
         dt = 1.0 / scfg.riss_rate_hz
         riss = systems.RissSystem.for_sensors(
-            getattr(sensors, scfg.imu_grade)(), getattr(sensors, scfg.odometer)(),
+            sensors.imu_grade(scfg.imu_grade), sensors.odometer(scfg.odometer),
             scfg.lever_b_m, dt,
         )
         tf = tight.TightFilter(riss, pcfg, geo.slots, dt, scfg.epoch_interval_s)

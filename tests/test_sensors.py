@@ -72,7 +72,7 @@ def test_presets_are_complete(name):
 def test_grades_are_ordered_by_gyro_quality():
     # MEMS >> tactical; the seeds' ordering of the sensors' in-run gyro bias.
     s = {k: f().gyro_bias_gm_sigma_rad_s for k, f in se.IMU_GRADES.items()}
-    assert s["crista"] > s["imu300cc"] > s["lsm6dsl"] > s["span_cpt"] > s["kvh1750"]
+    assert s["crista"] > s["crossbow_imu300cc"] > s["lsm6dsl"] > s["span_cpt"] > s["kvh1750"]
 
 
 def test_white_noise_std_matches_arw_vrw(noise_and_gm_run):

@@ -1,7 +1,7 @@
 """``jaxnav ppp``: post-processed precise point positioning on real RINEX data.
 
     jaxnav ppp --obs OBS --nav NAV [--sp3 F ...] [--clk F] [--ionex F]
-               --mode static|kinematic --freq single|dual [--systems G,R,E]
+               --mode static|kinematic --freq single|dual [--phase] [--systems G,R,E]
                [--start ISO --duration S] [--ref X,Y,Z] --out OUT.pos
 
 The forward filter is ``filter/tight.py``'s epoch step driven by a GNSS-only system
@@ -9,9 +9,12 @@ The forward filter is ``filter/tight.py``'s epoch step driven by a GNSS-only sys
 integrated PPP/INS filters. ``--freq dual`` runs ionosphere-free code + carrier with float
 ambiguities and a zenith-wet-delay state (``float_ppp``, S002 ch. 5); ``--freq single`` runs
 C1 code with the broadcast Klobuchar (or ``--ionex``) ionosphere and the broadcast TGD
-(``sf_code``, S000 / S002 ch. 4). ``--mode static`` keeps the position a random constant,
-``--mode kinematic`` makes it a random walk of 100 m/sqrt(s) (S002 §5.2.3). Without ``--sp3``
-the broadcast orbits and clocks are used.
+(``sf_code``, S000 / S002 ch. 4); ``--freq single --phase`` adds the L1 carrier phase with
+a float ambiguity and a slant-ionosphere state per satellite (``sf_ppp``, S002 ch. 4; its
+slips come from the receiver's loss-of-lock indicators only, as the geometry-free and
+Melbourne-Wuebbena tests need two frequencies). ``--mode static`` keeps the position a random
+constant, ``--mode kinematic`` makes it a random walk of 100 m/sqrt(s) (S002 §5.2.3). Without
+``--sp3`` the broadcast orbits and clocks are used.
 
 Receiver clock: S002 §5.2.2 models it as white noise; here the clock keeps the bias + drift
 states of the tight filter with a large bias PSD (``CLOCK_PSD_M2_S``), which re-estimates it
@@ -84,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ionex", help="IONEX maps for the single-frequency ionosphere")
     p.add_argument("--mode", choices=("static", "kinematic"), required=True)
     p.add_argument("--freq", choices=("single", "dual"), required=True)
+    p.add_argument("--phase", action="store_true",
+                   help="with --freq single: add the L1 carrier phase (sf_ppp)")
     p.add_argument("--systems", type=_parse_systems, default=("G",), help="e.g. G or G,E")
     p.add_argument("--start", help="first epoch, ISO GPST (e.g. 2020-06-25T00:00:00)")
     p.add_argument("--duration", type=float, help="seconds to process from --start")
@@ -91,7 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--ppp-mode",
         choices=ppp_modes.MODES,
-        help="override the PPP flavour (default float_ppp for dual, sf_code single)",
+        help="override the PPP flavour (default: float_ppp for dual, sf_code for single, "
+        "sf_ppp for single with --phase)",
     )
     p.add_argument("--elevation-mask", type=float, default=10.0, help="degrees (default 10)")
     p.add_argument(
@@ -247,7 +253,26 @@ def main(argv=None) -> int:
         return 2
 
 
+#: The PPP flavour of (--freq, --phase) when --ppp-mode is not given.
+DEFAULT_MODES = {("dual", False): "float_ppp", ("single", False): "sf_code",
+                 ("single", True): "sf_ppp"}
+
+
+def _ppp_mode(args) -> str:
+    """The mode for the command line, checked against the frequencies read."""
+    if args.phase and args.freq == "dual":
+        raise InputError("--phase is for --freq single",
+                         expected="--freq single --phase (dual frequency always uses the phase)")
+    mode = args.ppp_mode or DEFAULT_MODES[(args.freq, args.phase)]
+    single = ppp_modes.get(mode).single_frequency
+    if single != (args.freq == "single"):
+        raise InputError(f"--ppp-mode {mode} is a {'single' if single else 'dual'}-frequency mode",
+                         expected=f"--freq {'single' if single else 'dual'}")
+    return mode
+
+
 def _main(args, argv, t_start) -> int:
+    mode = _ppp_mode(args)  # before any file is read
     if not args.sp3 and args.nav is None:
         raise InputError("orbits are needed", expected="--sp3 files and/or --nav")
     window = _time_window(args)
@@ -278,7 +303,6 @@ def _main(args, argv, t_start) -> int:
     prep = prep_mod.prepare_gnss(obs, products, opt, static_receiver=args.mode == "static")
     t_read = time.time()
 
-    mode = args.ppp_mode or ("float_ppp" if args.freq == "dual" else "sf_code")
     sys_ids = tuple(sorted({prep_mod.LETTER_TO_SYS[s] for s in args.systems}))
     cfg = ppp.PppConfig(
         mode=mode,
@@ -295,7 +319,8 @@ def _main(args, argv, t_start) -> int:
     jax.block_until_ready(out.llh)
     t_run = time.time()
 
-    q = pos_io.Q_PPP if args.freq == "dual" else pos_io.Q_SINGLE
+    # RTKLIB's quality flag: PPP for a carrier-phase solution, "single" for code only.
+    q = pos_io.Q_PPP if ppp_modes.get(mode).uses_phase else pos_io.Q_SINGLE
     sol = _pos_solution(prep, out, q)
     cmd = "jaxnav ppp " + " ".join(argv)
     pos_io.write_pos(

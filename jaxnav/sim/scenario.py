@@ -155,8 +155,8 @@ def realize(
     k_imu, k_odo, k_obs = jax.random.split(key, 3)
     truth = geo.truth
     dt = 1.0 / cfg.imu_rate_hz
-    grade = getattr(sensors, cfg.imu_grade)()
-    odo = getattr(sensors, cfg.odometer)()
+    grade = sensors.imu_grade(cfg.imu_grade)
+    odo = sensors.odometer(cfg.odometer)
     dth, dv, imu_err = sensors.simulate_imu(k_imu, truth.dtheta_b[1:], truth.dv_b[1:], dt, grade)
     m = int(round(cfg.imu_rate_hz / cfg.riss_rate_hz))
     dt_riss = 1.0 / cfg.riss_rate_hz

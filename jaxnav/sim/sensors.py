@@ -385,9 +385,9 @@ def span_fsas() -> ImuGrade:
     )
 
 
-#: Preset constructors by short name.
+#: IMU presets by the name a scenario uses (``imu_grade``, ``ins_grade``).
 IMU_GRADES = {
-    "imu300cc": crossbow_imu300cc,
+    "crossbow_imu300cc": crossbow_imu300cc,
     "lsm6dsl": lsm6dsl,
     "crista": crista,
     "span_cpt": span_cpt,
@@ -439,6 +439,24 @@ def wheel_odometer() -> OdometerParams:
         noise_std_m_s=0.02,
         quantum_m_s=0.0,
     )
+
+
+#: Odometer presets by the name a scenario uses (``odometer``).
+ODOMETERS = {"obd2_odometer": obd2_odometer, "wheel_odometer": wheel_odometer}
+
+
+def imu_grade(name: str) -> ImuGrade:
+    """The IMU preset ``name``; ValueError naming the allowed ones otherwise."""
+    if name not in IMU_GRADES:
+        raise ValueError(f"unknown IMU preset {name!r}; allowed: {', '.join(IMU_GRADES)}")
+    return IMU_GRADES[name]()
+
+
+def odometer(name: str) -> OdometerParams:
+    """The odometer preset ``name``; ValueError naming the allowed ones otherwise."""
+    if name not in ODOMETERS:
+        raise ValueError(f"unknown odometer preset {name!r}; allowed: {', '.join(ODOMETERS)}")
+    return ODOMETERS[name]()
 
 
 # ---- simulation --------------------------------------------------------------------------------

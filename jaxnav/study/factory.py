@@ -132,9 +132,13 @@ class SimFactory:
         gim_fraction, self.iono_model_fraction = IONO_MODELS[t.get("iono_model", "klobuchar")]
         self.bssd = t.get("bssd", False)
         grades = [t.get("imu_grade", "crossbow_imu300cc"), t.get("ins_grade", "span_cpt")]
-        for name in grades + [t.get("odometer", "obd2_odometer")]:
-            if not hasattr(sensors, name):
-                raise ValueError(f"[scenario] sensor preset {name!r} does not exist in sim.sensors")
+        for key, name, table in (("imu_grade", grades[0], sensors.IMU_GRADES),
+                                 ("ins_grade", grades[1], sensors.IMU_GRADES),
+                                 ("odometer", t.get("odometer", "obd2_odometer"),
+                                  sensors.ODOMETERS)):
+            if name not in table:
+                raise ValueError(f"[scenario] {key} = {name!r}: expected one of "
+                                 f"{', '.join(table)}")
         self.cfg = scenario.ScenarioConfig(
             drive_seed=t.get("drive_seed", 0),
             drive_style=t.get("drive_style", "mixed"),
@@ -177,8 +181,8 @@ class SimFactory:
         cfg = self.cfg
         if name.startswith("riss"):
             return systems.RissSystem.for_sensors(
-                getattr(sensors, cfg.imu_grade)(),
-                getattr(sensors, cfg.odometer)(),
+                sensors.imu_grade(cfg.imu_grade),
+                sensors.odometer(cfg.odometer),
                 cfg.lever_b_m,
                 1.0 / cfg.riss_rate_hz,
                 cfg.epoch_interval_s,
@@ -188,7 +192,7 @@ class SimFactory:
             layout = LC_SYSTEMS[name][0]
         else:
             layout = INS15 if name.startswith("ins15") else INS21
-        model = loose.imu_error_model(getattr(sensors, self.ins_grade)())
+        model = loose.imu_error_model(sensors.imu_grade(self.ins_grade))
         return systems.InsSystem(layout, model, jnp.asarray(cfg.lever_b_m, jnp.float64))
 
     def filter(self, mode: str, system_name: str) -> tight.TightFilter | cascade.CascadeFilter:

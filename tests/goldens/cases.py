@@ -39,6 +39,8 @@ CASES = {
     "df_code-bssd/riss9": ({"bssd": True}, "df_code", "riss9", {}),
     "float_ppp-gre/riss9": ({"constellations": ["gps", "glonass", "galileo"]}, "float_ppp",
                             "riss9", {}),
+    # Added with the mode (recorded from its first version, 2026-12-02), for later refactors.
+    "sf_ppp/riss9": ({}, "sf_ppp", "riss9", {}),
 }
 FIELDS = ("llh", "vel_enu", "euler", "P_nav_diag", "P_nav_final", "nis", "dof", "used_by_kind",
           "gated_by_kind", "clock_bias_m")

@@ -9,10 +9,11 @@ from jaxnav.gnss.modes.float_ppp import FloatPpp
 from jaxnav.gnss.modes.ic_ppp import IcPpp
 from jaxnav.gnss.modes.sdf_code import SdfCode
 from jaxnav.gnss.modes.sf_code import SfCode
+from jaxnav.gnss.modes.sf_ppp import SfPpp
 
 #: name -> mode class, in the order tables and help texts list them.
 REGISTRY: dict[str, type[AbstractPppMode]] = {
-    cls.name: cls for cls in (SfCode, DfCode, SdfCode, FloatPpp, IcPpp)
+    cls.name: cls for cls in (SfCode, DfCode, SdfCode, FloatPpp, IcPpp, SfPpp)
 }
 #: The registered names (SEED_SPEC 2.2-2.5).
 MODES: tuple[str, ...] = tuple(REGISTRY)

@@ -1,5 +1,6 @@
-"""``float_ppp``: IF code + IF carrier with a float ambiguity per slot in metres (S002, S003,
-S004; S000's "code-carrier").
+"""``float_ppp``: IF code + IF carrier, a float ambiguity per slot (S002-S004, S000's CC).
+
+S000 calls it "code-carrier"; the ambiguity is in metres.
 
 Phase row: Phi_IF = rho + c dt + T + N_IF; N_IF restarts at Phi_IF - P_IF (sigma
 ``ambiguity_init_sigma_m``) whenever its slot rises, slips or returns.

@@ -33,6 +33,24 @@ def iono_rw_sigma(cfg, elevation_rad):
     return models.elevation_sigma(cfg.iono_sigma_m_sqrt_h, elevation_rad)
 
 
+def slant_iono_reset_variance(cfg, obs, elevation):
+    """"prior": a restarted slant ionosphere starts at the model's variance (else the initial)."""
+    if cfg.iono_constraint != "prior":
+        return {}
+    return {"iono": iono_model_var(cfg, obs.iono_model_l1_m, elevation)}
+
+
+def slant_iono_pseudo_rows(cfg, ctx) -> list[RowBlock]:
+    """"epoch": S001 eqs 6-7 as printed, I - I_model every epoch with the model's variance (its
+    local-time / latitude term folded into the residual model; SEED_SPEC 2.5)."""
+    if cfg.iono_constraint != "epoch":
+        return []
+    S = ctx.usable.shape[0]
+    iono = ctx.gnss_est[ctx.layout.sl("iono")]
+    H = per_slot_columns(ctx.layout, "iono", jnp.ones(S))
+    return [RowBlock(iono - ctx.obs.iono_model_l1_m, H, ctx.iono_var, ctx.usable, KIND_IONO)]
+
+
 class IcPpp(AbstractPppMode):
     name: ClassVar[str] = "ic_ppp"
     uses_phase: ClassVar[bool] = True
@@ -51,9 +69,7 @@ class IcPpp(AbstractPppMode):
         return q.at[layout.i("dcb")].set((cfg.dcb_sigma_m_sqrt_h / _SQRT_H) ** 2)
 
     def reset_variance(self, cfg, obs, elevation):
-        if cfg.iono_constraint != "prior":
-            return {}
-        return {"iono": iono_model_var(cfg, obs.iono_model_l1_m, elevation)}
+        return slant_iono_reset_variance(cfg, obs, elevation)
 
     def reset_values(self, cfg, layout, obs, cmb, restart, gnss_est):
         """I = I_model; N1 = L1 - P1 + 2 I, N2 = L2 - P2 + 2 gamma I (code and phase
@@ -91,11 +107,4 @@ class IcPpp(AbstractPppMode):
         return out
 
     def pseudo_rows(self, cfg, ctx):
-        """S001 eqs 6-7 as printed: I - I_model, its variance the model's (its local-time /
-        latitude term folded into the residual model; SEED_SPEC 2.5)."""
-        if cfg.iono_constraint != "epoch":
-            return []
-        S = ctx.usable.shape[0]
-        iono = ctx.gnss_est[ctx.layout.sl("iono")]
-        H = per_slot_columns(ctx.layout, "iono", jnp.ones(S))
-        return [RowBlock(iono - ctx.obs.iono_model_l1_m, H, ctx.iono_var, ctx.usable, KIND_IONO)]
+        return slant_iono_pseudo_rows(cfg, ctx)
