@@ -14,7 +14,7 @@ TINY = textwrap.dedent(
     """
     [study]
     name = "tiny"
-    modes = ["df_code"]
+    modes = ["sf_ppp"]  # the newest mode through the whole sweep (others: demo, test_sweep)
     systems = ["riss"]
     durations_s = [20]
     satellites_kept = [0, "all"]
