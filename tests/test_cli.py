@@ -35,7 +35,9 @@ TINY = textwrap.dedent(
 
 def test_invalid_config_is_rejected_before_any_work(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
-    bad.write_text(TINY.replace('modes = ["df_code"]', 'modes = ["df_cod"]'))
+    text = TINY.replace('modes = ["sf_ppp"]', 'modes = ["df_cod"]')
+    assert text != TINY  # the typo is really in the file (a no-op replace once ran a sweep)
+    bad.write_text(text)
     out = tmp_path / "out"
     assert cli.main(["sweep", str(bad), "--out", str(out)]) == 2
     err = capsys.readouterr().err
