@@ -33,6 +33,19 @@ def iono_rw_sigma(cfg, elevation_rad):
     return models.elevation_sigma(cfg.iono_sigma_m_sqrt_h, elevation_rad)
 
 
+def slant_iono_process_noise(cfg, layout, elevation, q):
+    """The slant ionosphere's random-walk PSD (S001 eqs 4-5) set in q."""
+    return q.at[layout.sl("iono")].set((iono_rw_sigma(cfg, elevation) / _SQRT_H) ** 2)
+
+
+def restart_slots(layout, gnss_est, restart, values: dict):
+    """``gnss_est`` with each per-slot block in ``values`` ({name: [S]}) set where ``restart``."""
+    for name, value in values.items():
+        cur = gnss_est[layout.sl(name)]
+        gnss_est = gnss_est.at[layout.sl(name)].set(jnp.where(restart, value, cur))
+    return gnss_est
+
+
 def slant_iono_reset_variance(cfg, obs, elevation):
     """"prior": a restarted slant ionosphere starts at the model's variance (else the initial)."""
     if cfg.iono_constraint != "prior":
@@ -65,7 +78,7 @@ class IcPpp(AbstractPppMode):
 
     def process_noise(self, cfg, layout, elevation, q):
         """Slant ionosphere and DCB: random walks (S001 eqs 4-5, 8-9)."""
-        q = q.at[layout.sl("iono")].set((iono_rw_sigma(cfg, elevation) / _SQRT_H) ** 2)
+        q = slant_iono_process_noise(cfg, layout, elevation, q)
         return q.at[layout.i("dcb")].set((cfg.dcb_sigma_m_sqrt_h / _SQRT_H) ** 2)
 
     def reset_variance(self, cfg, obs, elevation):
@@ -80,10 +93,7 @@ class IcPpp(AbstractPppMode):
             "amb1": obs.phase_m[:, 0] - cmb.code_corr_m[:, 0] + 2.0 * iono0,
             "amb2": obs.phase_m[:, 1] - cmb.code_corr_m[:, 1] + 2.0 * cmb.gamma * iono0,
         }
-        for name, value in new.items():
-            cur = gnss_est[layout.sl(name)]
-            gnss_est = gnss_est.at[layout.sl(name)].set(jnp.where(restart, value, cur))
-        return gnss_est
+        return restart_slots(layout, gnss_est, restart, new)
 
     def rows(self, cfg, ctx):
         layout, cmb = ctx.layout, ctx.cmb

@@ -25,13 +25,12 @@ import jax.numpy as jnp
 
 from jaxnav.gnss.modes.base import AbstractPppMode, Block, RowBlock, per_slot_columns
 from jaxnav.gnss.modes.ic_ppp import (
-    iono_rw_sigma,
+    restart_slots,
+    slant_iono_process_noise,
     slant_iono_pseudo_rows,
     slant_iono_reset_variance,
 )
 from jaxnav.gnss.ppp_data import KIND_CODE, KIND_PHASE
-
-_SQRT_H = 60.0  # sqrt(3600 s): converts "per sqrt(hour)" to "per sqrt(second)"
 
 
 class SfPpp(AbstractPppMode):
@@ -50,7 +49,7 @@ class SfPpp(AbstractPppMode):
 
     def process_noise(self, cfg, layout, elevation, q):
         """Slant ionosphere: a random walk (S001 eqs 4-5); the ambiguities are constants."""
-        return q.at[layout.sl("iono")].set((iono_rw_sigma(cfg, elevation) / _SQRT_H) ** 2)
+        return slant_iono_process_noise(cfg, layout, elevation, q)
 
     def reset_variance(self, cfg, obs, elevation):
         return slant_iono_reset_variance(cfg, obs, elevation)
@@ -59,10 +58,7 @@ class SfPpp(AbstractPppMode):
         """I = I_model, N1 = L1 - C1 + 2 I_model."""
         iono0 = obs.iono_model_l1_m
         new = {"iono": iono0, "amb1": obs.phase_m[:, 0] - cmb.code_corr_m[:, 0] + 2.0 * iono0}
-        for name, value in new.items():
-            cur = gnss_est[layout.sl(name)]
-            gnss_est = gnss_est.at[layout.sl(name)].set(jnp.where(restart, value, cur))
-        return gnss_est
+        return restart_slots(layout, gnss_est, restart, new)
 
     def rows(self, cfg, ctx):
         layout = ctx.layout
