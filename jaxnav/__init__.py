@@ -11,6 +11,39 @@ if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
         os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false"
     ).strip()
 
+
+def _jaxlib_minor() -> tuple[int, int] | None:
+    from importlib import metadata
+
+    try:
+        major, minor = metadata.version("jaxlib").split(".")[:2]
+        return int(major), int(minor)
+    except (metadata.PackageNotFoundError, ValueError):
+        return None
+
+
+# JAXNAV_XLA_FUSION_EMITTERS=0: XLA:CPU's older (LLVM IR) fusion emitters instead of the MLIR
+# ones. They compile our filters and the simulator in 0.65-0.72x the time; run times are mixed
+# (RISS filter 1.11x, INS15 0.98x, simulator 0.87x; benchmarks/xla_emitters.py, RESULTS.md), so
+# XLA's default stays the default and compile-bound work opts in (the test suite does, in
+# tests/conftest.py). Only on the jaxlib release where this was measured: the switch is being
+# removed from XLA, and an unknown flag in XLA_FLAGS is a fatal error. A user's own setting of
+# the flag in XLA_FLAGS wins.
+OLDER_EMITTERS_FLAG = "--xla_cpu_use_fusion_emitters=false"
+if (
+    os.environ.get("JAXNAV_XLA_FUSION_EMITTERS") == "0"
+    and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", "")
+):
+    if _jaxlib_minor() == (0, 10):
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + OLDER_EMITTERS_FLAG
+                                   ).strip()
+    else:
+        import warnings
+
+        warnings.warn("JAXNAV_XLA_FUSION_EMITTERS=0 ignored: measured on jaxlib 0.10 only "
+                      "(benchmarks/xla_emitters.py); XLA's default emitters are used",
+                      stacklevel=2)
+
 # Single-threaded OpenBLAS: jaxlib's CPU Cholesky / triangular solves call scipy's OpenBLAS,
 # which splits each small per-scenario call over all cores. On a busy machine every call then
 # waits for the descheduled helper thread: measured 44-53 s vs 0.13-0.18 s for 16 scenarios x 40

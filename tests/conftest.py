@@ -28,6 +28,12 @@ os.environ.setdefault(
 # share more, was measured no faster (22.9 vs 21.5 min, within the machine's drift).
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
+# XLA:CPU's older fusion emitters for the whole session and its subprocesses: they compile our
+# kernels in 0.65-0.72x the time (benchmarks/xla_emitters.py) and compilation is most of the
+# suite's time; results differ from XLA's default emitters by rounding only (the goldens were
+# recorded with this setting). jaxnav applies it only on the jaxlib it was measured on.
+os.environ.setdefault("JAXNAV_XLA_FUSION_EMITTERS", "0")
+
 HEAVY_GROUP = "heavy"
 # Work units that take longest (docs/testing.md, measured on 2 cores), started first so that
 # neither worker is left with a long unit at the end; the rest keep their collection order.
