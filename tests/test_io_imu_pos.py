@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import jaxnav  # noqa: F401  (float64)
+from jaxnav.core.gpstime import GTIME_TO_GPS_SECONDS, datetime64_to_gps_seconds
 from jaxnav.geodesy import normal_gravity
 from jaxnav.io import (
     GPS_EPOCH,
@@ -23,7 +24,6 @@ from jaxnav.io import (
     sensor_to_body_dcm,
     write_pos,
 )
-from jaxnav.io.errors import GTIME_TO_GPS_SECONDS, datetime64_to_gps_seconds
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DRIVE = DATA / "gnss_imu_drive"

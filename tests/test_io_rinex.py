@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import jaxnav  # noqa: F401  (float64)
+from jaxnav.core.gpstime import datetime64_to_gps_seconds
 from jaxnav.io import InputError, read_rinex_nav, read_rinex_obs
-from jaxnav.io.errors import datetime64_to_gps_seconds
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "esbc_static"
 OBS = DATA / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"

@@ -20,6 +20,7 @@ import pytest
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import attitude, geodesy
+from jaxnav.apps import lc
 from jaxnav.core.states import INS27
 from jaxnav.filter import loose
 from jaxnav.filter.systems import InsSystem, NavSigmas
@@ -333,7 +334,7 @@ def test_gnss_fixes_from_rtklib_solution():
         sd_vel_neu=np.full((n, 3), 0.05),
         sd_vel_cross=np.zeros((n, 3)),
     )
-    fix = loose.gnss_fixes_from_pos(sol)
+    fix = lc.gnss_fixes_from_pos(sol)
     assert np.array_equal(fix.pos_valid, [True, False, True])
     assert np.array_equal(fix.vel_valid, [True, False, False])
     # ENU covariance: E = sde^2, N = sdn^2, EN = sign(sdne) sdne^2, NU = -sdun^2.

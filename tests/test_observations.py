@@ -9,6 +9,7 @@ import pytest
 
 import jaxnav  # noqa: F401  (enables float64)
 from jaxnav import geodesy
+from jaxnav.core import gpstime
 from jaxnav.geodesy import C_LIGHT
 from jaxnav.gnss import corrections, signals
 from jaxnav.sim import constellation as C
@@ -291,7 +292,7 @@ def test_ionosphere_free_code_closes_with_the_filter_models(scenario):
     rho, rot = jax.vmap(corrections.geometric_range_m)(pos, obs.sat_pos_ecef)
     llh = jax.vmap(geodesy.ecef_to_llh)(pos)
     el, _ = jax.vmap(corrections.elevation_azimuth)(pos, rot, llh)
-    doy = C.day_of_year(C.DEFAULT_T0_GPS_S) + np.asarray(t) / 86400.0
+    doy = gpstime.day_of_year(C.DEFAULT_T0_GPS_S) + np.asarray(t) / 86400.0
     trop = jax.vmap(
         lambda e, l, d: corrections.tropo_slant_delay_m(
             e, l[0], l[2], d, corrections.saastamoinen_zwd_m(l[2], QUIET.rel_humidity)

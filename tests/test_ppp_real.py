@@ -207,13 +207,12 @@ def test_ionex_slant_delay_of_a_uniform_map():
 
 @pytest.fixture(scope="module")
 def esbc():
-    from jaxnav.io import read_clk, read_rinex_obs, read_sp3
-    from jaxnav.sim import constellation
+    from jaxnav.io import read_broadcast_ephemeris, read_clk, read_rinex_obs, read_sp3
 
     window = (dt.datetime(2020, 6, 25, 0, 0), dt.datetime(2020, 6, 25, 1, 59, 59))
     req = {"G": ("C1C", "C1W", "C2W", "L1C", "L2W", "D1C")}
     obs = read_rinex_obs(OBS, req, tlim=window, indicators=True)
-    nav = constellation.read_rinex_nav(NAV, systems="G")
+    nav = read_broadcast_ephemeris(NAV, systems="G")
     precise = prep_mod.Products(nav=nav, sp3=read_sp3(SP3), clk=read_clk(CLK, systems={"G"}))
     return obs, nav, precise
 

@@ -20,8 +20,8 @@ import pytest
 
 import jaxnav  # noqa: F401
 from jaxnav import geodesy
+from jaxnav.core.gpstime import datetime64_to_gps_seconds
 from jaxnav.gnss import tides, windup
-from jaxnav.io.errors import datetime64_to_gps_seconds
 
 
 def _utc(iso: str, leap: float = 18.0) -> float:

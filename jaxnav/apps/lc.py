@@ -423,6 +423,29 @@ def resample_increments(inc: imu_io.ImuIncrements, t0_gps_s: float, dt_s: float,
     return out[0], out[1]
 
 
+def gnss_fixes_from_pos(sol) -> loose.GnssFix:
+    """``GnssFix`` epochs from an RTKLIB solution (``jaxnav.io.pos.PosSolution``).
+
+    Outage epochs (Q = 7) and missing values are marked invalid (their values replaced by finite
+    placeholders). Matching the solution epochs to the IMU epochs is the caller's job.
+    """
+    llh = np.asarray(sol.llh, np.float64)
+    cov_p = pos_io.covariance_enu(sol.sd_neu_m, sol.sd_cross_m)
+    vel = np.asarray(sol.vel_enu, np.float64)
+    cov_v = pos_io.covariance_enu(sol.sd_vel_neu, sol.sd_vel_cross)
+    ok_p = ~np.asarray(sol.outage) & np.isfinite(llh).all(-1) & np.isfinite(cov_p).all((-1, -2))
+    ok_v = ~np.asarray(sol.outage) & np.isfinite(vel).all(-1) & np.isfinite(cov_v).all((-1, -2))
+    eye = np.broadcast_to(np.eye(3), cov_p.shape)
+    return loose.GnssFix(
+        jnp.asarray(np.where(ok_p[:, None], llh, 0.0)),
+        jnp.asarray(np.where(ok_p[:, None, None], cov_p, eye)),
+        jnp.asarray(np.where(ok_v[:, None], vel, 0.0)),
+        jnp.asarray(np.where(ok_v[:, None, None], cov_v, eye)),
+        jnp.asarray(ok_p),
+        jnp.asarray(ok_v),
+    )
+
+
 def _fix_covariances(sol: pos_io.PosSolution, cfg: CarConfig):
     cov_p = pos_io.covariance_enu(sol.sd_neu_m, sol.sd_cross_m)
     cov_v = pos_io.covariance_enu(sol.sd_vel_neu, sol.sd_vel_cross)

@@ -42,16 +42,17 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
+from jaxnav.core.gpstime import gps_seconds_to_datetime64
 from jaxnav.filter import ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
 from jaxnav.gnss import modes as ppp_modes
 from jaxnav.gnss import ppp
 from jaxnav.io import pos as pos_io
 from jaxnav.io import prepare as prep_mod
-from jaxnav.io.errors import InputError, gps_seconds_to_datetime64
+from jaxnav.io.errors import InputError
+from jaxnav.io.nav import read_broadcast_ephemeris
 from jaxnav.io.products import read_clk, read_ionex, read_sp3
 from jaxnav.io.rinex import read_rinex_obs
-from jaxnav.sim import constellation
 
 #: Receiver-clock bias PSD [m^2/s] (chosen): 1e4 m^2/s is a 550 m 1-sigma step per 30 s epoch,
 #: i.e. white noise for practical purposes (S002 §5.2.2), yet far from float64 trouble.
@@ -294,7 +295,7 @@ def _main(args, argv, t_start) -> int:
             indicators=True,
         )
     nav = (
-        constellation.read_rinex_nav(args.nav, systems="".join(args.systems)) if args.nav else None
+        read_broadcast_ephemeris(args.nav, systems="".join(args.systems)) if args.nav else None
     )
     sp3 = read_sp3(args.sp3) if args.sp3 else None
     clk = read_clk(args.clk, systems=set(args.systems)) if args.clk else None

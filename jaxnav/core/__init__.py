@@ -1,1 +1,3 @@
-"""Contracts every layer may import: state layouts (``core/states.py``)."""
+"""Contracts every layer may import: state layouts (``states.py``), the GPS time scale
+(``gpstime.py``), a navigation history (``track.py``) and what the sweep engine needs from a
+filter (``ops.py``)."""

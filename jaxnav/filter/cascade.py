@@ -36,7 +36,7 @@ Known limitation of every cascade (not modelled, as in S003): the PPP solution's
 correlated in time, while the LC filter weights each epoch's fix as independent.
 
 Carry = ``Carry(ppp, lc)``; ``run`` = ``lax.scan`` of ``epoch_step``; ``cascade_ops()`` adapts it
-to the sweep engine (``study.sweep.FilterOps``): the keep mask is the PPP input's, the readout is
+to the sweep engine (``core.ops.FilterOps``): the keep mask is the PPP input's, the readout is
 the LC INS navigation solution and its 9x9 navigation covariance (pos rad/rad/m, vel, att), the
 same as the tight INS filters give.
 """
@@ -51,6 +51,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxnav import geodesy
+from jaxnav.core.ops import FilterOps
+from jaxnav.core.track import track
 from jaxnav.filter import loose, ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
 from jaxnav.gnss import ppp
@@ -206,17 +208,13 @@ def initial_carry(
 
 # ---- the sweep engine's view ------------------------------------------------------------------
 def _readout(out: EpochOutput):
-    from jaxnav.study import metrics as mt
-
-    return mt.track(out.lc.llh, out.lc.vel_enu, out.lc.euler), out.lc.P_nav
+    return track(out.lc.llh, out.lc.vel_enu, out.lc.euler), out.lc.P_nav
 
 
 @functools.cache
 def cascade_ops():
-    """``study.sweep.FilterOps`` of the cascade: keep mask on the PPP part, readout = the LC INS
+    """``core.ops.FilterOps`` of the cascade: keep mask on the PPP part, readout = the LC INS
     solution and its navigation covariance. Cached, so compiled sweep functions are reused."""
-    from jaxnav.study.sweep import FilterOps
-
     return FilterOps(
         run=run,
         readout=_readout,

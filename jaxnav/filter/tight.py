@@ -32,6 +32,7 @@ from jaxnav.core.states import StateLayout
 from jaxnav.filter import constraints, ekf
 from jaxnav.filter.systems import NavSigmas
 from jaxnav.gnss import corrections, models, ppp
+from jaxnav.gnss.ppp_data import EpochInput  # noqa: F401  (the filter's input, re-exported)
 
 
 class TightFilter(eqx.Module):
@@ -61,15 +62,6 @@ class Carry(NamedTuple):
     hatch: ppp.HatchState
     tracked: jnp.ndarray  # [S] bool: slot used (phase continuous) at the previous epoch
     elevation: jnp.ndarray  # [S] previous elevations (for the ionosphere random walk)
-
-
-class EpochInput(NamedTuple):
-    """Everything one GNSS epoch consumes."""
-
-    samples: Any  # system IMU/RISS samples over (t_{k-1}, t_k] ([K, ...])
-    obs: ppp.GnssObs
-    keep: jnp.ndarray  # [S] bool: False withholds the slot (outage / availability policy)
-    day_of_year: jnp.ndarray  # scalar, for the mapping function
 
 
 class EpochOutput(NamedTuple):

@@ -7,7 +7,7 @@ filters. All per-slot arrays are [S]; masks select what is used.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
@@ -33,6 +33,15 @@ class GnssObs(NamedTuple):
     code_bias_m: jnp.ndarray  # [S, 2] known satellite code biases w.r.t. the clock datum [m]
     iono_model_l1_m: jnp.ndarray  # [S] model (broadcast / GIM) slant f1 ionosphere [m]
     sat: models.SatEpoch
+
+
+class EpochInput(NamedTuple):
+    """Everything one GNSS epoch of a tightly coupled filter consumes (``filter/tight.py``)."""
+
+    samples: Any  # system IMU/RISS samples over (t_{k-1}, t_k] ([K, ...])
+    obs: GnssObs
+    keep: jnp.ndarray  # [S] bool: False withholds the slot (outage / availability policy)
+    day_of_year: jnp.ndarray  # scalar, for the mapping function
 
 
 class Combos(NamedTuple):

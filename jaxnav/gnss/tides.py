@@ -22,12 +22,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxnav import geodesy
+from jaxnav.core.gpstime import GPS_UTC_LEAP_S
 
 # GPS epoch (1980-01-06 00:00 GPST) as a Julian date, TT - GPST, and the J2000.0 epoch.
 JD_GPS_EPOCH = 2444244.5
 TT_MINUS_GPS_S = 51.184  # TT = TAI + 32.184 s, TAI = GPST + 19 s
 JD_J2000 = 2451545.0
-GPS_UTC_LEAP_S = 18.0  # GPST - UTC since 2017-01-01 (IERS Bulletin C); UT1 ~ UTC to < 1 s
 
 ASTRONOMICAL_UNIT_M = 149597870700.0  # IAU 2012
 GM_EARTH = 3.986004418e14  # IERS 2010 table 1.1 [m^3/s^2]

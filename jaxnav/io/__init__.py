@@ -6,14 +6,14 @@ are pure JAX. All times are GPS seconds (since 1980-01-06 00:00:00 GPST). Bad in
 ``InputError`` naming the file, the line / record / epoch and what was expected.
 """
 
-from jaxnav.io.errors import (
+from jaxnav.core.gpstime import (
     GPS_EPOCH,
-    InputError,
     datetime64_to_gps_seconds,
     gps_seconds_to_datetime64,
     gps_seconds_to_week_tow,
     week_tow_to_gps_seconds,
 )
+from jaxnav.io.errors import InputError
 from jaxnav.io.imu import (
     ImuIncrements,
     ImuLog,
@@ -23,6 +23,7 @@ from jaxnav.io.imu import (
     read_timetag,
     sensor_to_body_dcm,
 )
+from jaxnav.io.nav import read_broadcast_ephemeris, read_rinex_nav
 from jaxnav.io.pos import Q_OUTAGE, PosSolution, covariance_enu, read_pos, write_pos
 from jaxnav.io.products import (
     ClockInterp,
@@ -48,7 +49,6 @@ from jaxnav.io.rinex import (
     SLOTS,
     RinexObs,
     SystemObs,
-    read_rinex_nav,
     read_rinex_obs,
 )
 
@@ -85,6 +85,7 @@ __all__ = [
     "read_imu_csv",
     "read_ionex",
     "read_pos",
+    "read_broadcast_ephemeris",
     "read_rinex_nav",
     "read_rinex_obs",
     "read_sp3",

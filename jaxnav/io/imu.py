@@ -39,7 +39,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxnav.io.errors import GTIME_TO_GPS_SECONDS, InputError
+from jaxnav.core.gpstime import GTIME_TO_GPS_SECONDS
+from jaxnav.io.errors import InputError
 
 # Conventional standard gravity (3rd CGPM, 1901): MEMS datasheets quote accelerations in this g.
 STANDARD_GRAVITY = 9.80665

@@ -24,12 +24,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxnav.io.errors import (
-    InputError,
+from jaxnav.core.gpstime import (
     datetime64_to_gps_seconds,
     gps_seconds_to_datetime64,
     week_tow_to_gps_seconds,
 )
+from jaxnav.io.errors import InputError
 
 Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP, Q_DR = 1, 2, 3, 4, 5, 6, 7  # RTKLIB SOLQ_*
 Q_OUTAGE = Q_DR

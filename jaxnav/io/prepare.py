@@ -1,7 +1,7 @@
 """Real observations + products -> the stacked, fixed-slot ``EpochInput`` of ``filter/tight.py``.
 
 ``prepare_gnss`` turns a RINEX observation file (``io.read_rinex_obs``) and the products
-(broadcast ephemerides from ``sim.constellation.read_rinex_nav``, SP3 orbits, RINEX clocks,
+(broadcast ephemerides from ``io.read_broadcast_ephemeris``, SP3 orbits, RINEX clocks,
 IONEX maps) into one ``ppp.GnssObs`` per epoch (stacked along a leading time axis), the
 ``ppp.SlotInfo`` of the satellites and the day of year; ``epoch_inputs`` adds the navigation
 system's per-epoch samples and the availability mask to make the ``tight.EpochInput`` pytree.
@@ -14,7 +14,7 @@ What each slot gets, per epoch (S002 eqs 2.25-2.26 with the corrections of SEED_
   reading at transmission, t_tx = t_sv - dt^s(t_sv), then the orbit at t_tx and dt^s again at
   t_tx (the receiver clock never enters: P/c already contains it). Precise orbits: SP3 Lagrange
   interpolation (io.products, 10 points, velocity by differentiation); broadcast: IS-GPS-200 /
-  GLONASS ICD evaluation (sim.constellation). Earth rotation during the travel time (Sagnac) is
+  GLONASS ICD evaluation (gnss.ephemeris). Earth rotation during the travel time (Sagnac) is
   applied by the filter's geometry (gnss.models), which expects exactly this transmit-time
   position in the transmit-time ECEF frame.
 - Satellite clock c dt^s: RINEX clock file (linear interpolation) or the SP3 clock column, or
@@ -63,10 +63,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import geodesy
-from jaxnav.filter.tight import EpochInput
+from jaxnav.core import gpstime
 from jaxnav.geodesy import C_LIGHT
-from jaxnav.gnss import corrections, models, signals, tides, windup
-from jaxnav.gnss.ppp import GnssObs, SlotInfo
+from jaxnav.gnss import corrections, ephemeris, models, signals, tides, windup
+from jaxnav.gnss.ppp_data import EpochInput, GnssObs, SlotInfo
 from jaxnav.io.products import (
     ClockInterp,
     ClockTable,
@@ -81,7 +81,6 @@ from jaxnav.io.products import (
     sp3_position_velocity,
 )
 from jaxnav.io.rinex import RinexObs
-from jaxnav.sim import constellation
 
 LETTER_TO_SYS = {"G": signals.SYS_GPS, "R": signals.SYS_GLO, "E": signals.SYS_GAL}
 
@@ -129,7 +128,7 @@ class PrepareOptions:
     sp3_one_sided: bool = False  # allow one-sided SP3 windows at the ends of the orbit table
     clock_max_gap_s: float | None = None  # None: io.products default (2 x interval)
     spp_mask_rad: float = math.radians(10.0)  # chosen: the filter's default mask (S000 QC)
-    leap_seconds: float = tides.GPS_UTC_LEAP_S
+    leap_seconds: float = gpstime.GPS_UTC_LEAP_S
     remove_spp_clock: bool = True  # subtract the SPP receiver clock from code and phase
 
     def __post_init__(self):
@@ -145,7 +144,7 @@ class PrepareOptions:
 class Products(NamedTuple):
     """The product files a run uses (any may be None; orbits need sp3 or nav)."""
 
-    nav: constellation.BroadcastEphemeris | None = None
+    nav: ephemeris.BroadcastEphemeris | None = None
     sp3: Sp3Orbit | None = None
     clk: ClockTable | None = None
     ionex: IonexMaps | None = None
@@ -359,8 +358,8 @@ def _broadcast_states(eph_sub, t_rx, travel_s) -> _SatProducts:
 
     def one_epoch(t, tau):
         t_src = t - tau - eph_sub.t_ref_gps_s
-        st0 = constellation.satellite_state(eph_sub, t_src)
-        st = constellation.satellite_state(eph_sub, t_src - st0.clock_s)
+        st0 = ephemeris.satellite_state(eph_sub, t_src)
+        st = ephemeris.satellite_state(eph_sub, t_src - st0.clock_s)
         return st
 
     st = jax.vmap(one_epoch)(jnp.asarray(t_rx), travel_s)
@@ -643,11 +642,11 @@ def prepare_gnss(
                 & (np.asarray(nav.prn) == int(s[1:]))
             )
             idx.append(int(sel[0]))
-        eph_sub = constellation.take_satellites(nav, np.array(idx))
+        eph_sub = ephemeris.take_satellites(nav, np.array(idx))
         sat = _broadcast_states(eph_sub, t_rx, travel)
 
     # --- model ionosphere inputs (needs geometry: computed after SPP) ------------------------
-    doy = np.array([constellation.day_of_year(t) for t in t_rx])
+    doy = np.array([gpstime.day_of_year(t) for t in t_rx])
     code_bias = np.zeros((T, S, 2))
     if not dual:
         tgd = _tgd_per_slot(products.nav, arr.sv, float(np.median(t_rx)))
@@ -838,7 +837,7 @@ def _klobuchar_batch(rx_pos, sat_pos, t_rx, alpha, beta):
     def one(rx, sp, t):
         llh = geodesy.ecef_to_llh(rx)
         el, az = corrections.elevation_azimuth(rx, sp, llh)
-        sow = constellation.gps_seconds_of_week(t)
+        sow = gpstime.gps_seconds_of_week(t)
         return C_LIGHT * corrections.klobuchar_delay_s(llh[0], llh[1], az, el, sow, alpha, beta)
 
     return jax.vmap(one)(rx_pos, sat_pos, t_rx)

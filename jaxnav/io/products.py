@@ -36,7 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.io.errors import InputError, datetime64_to_gps_seconds
+from jaxnav.core.gpstime import datetime64_to_gps_seconds
+from jaxnav.io.errors import InputError
 
 # Other GNSS time scales -> GPST [s] (GST/QZSST steered to GPST; BDT = GPST - 14 s).
 _TIME_SYSTEM_TO_GPS_S = {"GPS": 0.0, "GAL": 0.0, "QZS": 0.0, "IRN": 0.0, "BDT": 14.0, "": 0.0}

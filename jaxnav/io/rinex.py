@@ -37,7 +37,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxnav.io.errors import InputError, datetime64_to_gps_seconds
+from jaxnav.core.gpstime import datetime64_to_gps_seconds
+from jaxnav.io.errors import InputError
 
 # (first PRN, number of slots) per constellation: GPS PRN 1-32, GLONASS slots 1-27 (24 + spares),
 # Galileo 1-36, BeiDou 1-63, QZSS 1-10, SBAS PRN 120-158 (RINEX S20-S58), NavIC 1-14.
@@ -597,48 +598,3 @@ def _interval(hdr: dict, t_gps: np.ndarray) -> float:
         return float(hdr["INTERVAL"][0][:10])
     except (KeyError, ValueError):
         return float("nan")
-
-
-def read_rinex_nav(
-    path: str | PathLike,
-    *,
-    use: set[str] | None = None,
-    tlim: tuple[_dt.datetime, _dt.datetime] | None = None,
-):
-    """Read a RINEX 2/3 navigation file with georinex (FutureWarnings filtered) -> xr.Dataset.
-
-    The dataset has dims (time, sv) with georinex's variable names (``sqrtA``, ``Toe``,
-    ``SVclockBias``...). Satellites with several message types (Galileo I/NAV and F/NAV) appear
-    as ``E01``, ``E01_1``... as georinex names them. Records that are entirely missing are
-    dropped; an ``InputError`` names the file if it is not navigation data or has no records.
-    """
-    import georinex as gr
-
-    path = Path(path)
-    text = _read_text(path)
-    lines = text.splitlines()
-    hdr, _ = _header(path, lines)
-    version, ftype = _version_type(path, hdr)
-    if ftype not in ("N", "G", "H", "L"):
-        raise InputError(
-            f"file type {ftype!r} is not navigation data",
-            file=path,
-            line=1,
-            expected="RINEX navigation file (type N/G/H)",
-        )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        try:
-            ds = gr.load(io.StringIO(text), use=use, tlim=tlim)
-        except Exception as exc:  # noqa: BLE001
-            raise InputError(
-                f"georinex failed: {type(exc).__name__}: {exc}",
-                file=path,
-                expected="valid RINEX navigation records",
-            ) from exc
-    if ds.sizes.get("time", 0) == 0 or ds.sizes.get("sv", 0) == 0:
-        raise InputError("no navigation records", file=path, expected="records for " + str(use))
-    t = ds.time.values.astype("datetime64[ns]")
-    if np.any(np.diff(t) < np.timedelta64(0, "ns")):
-        ds = ds.sortby("time")
-    return ds

@@ -59,6 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import geodesy
+from jaxnav.core import gpstime
 from jaxnav.geodesy import C_LIGHT
 from jaxnav.gnss import corrections, signals
 from jaxnav.gnss.signals import CODE_BAND, N_CODES, N_SYSTEMS, SYS_GAL
@@ -723,8 +724,8 @@ def scenario_time_constants(orbits, t0_gps_s=DEFAULT_T0_GPS_S):
     """(orbit_dt, sow0, doy0) of a scenario starting at t0_gps_s (host floats)."""
     t0 = float(t0_gps_s)
     orbit_dt = t0 - float(orbits.t_ref_gps_s)
-    sow0 = math.fmod(t0, constellation.SECONDS_PER_WEEK)
-    doy0 = constellation.day_of_year(t0)
+    sow0 = math.fmod(t0, gpstime.SECONDS_PER_WEEK)
+    doy0 = gpstime.day_of_year(t0)
     return orbit_dt, sow0, doy0
 
 

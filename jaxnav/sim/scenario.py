@@ -19,8 +19,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import attitude, geodesy
-from jaxnav.filter.tight import EpochInput
+from jaxnav.core import gpstime
 from jaxnav.gnss import corrections, models, ppp, signals
+from jaxnav.gnss.ppp_data import EpochInput
 from jaxnav.ins import riss, strapdown
 from jaxnav.sim import constellation, observations, sensors, trajectory
 
@@ -104,7 +105,7 @@ def build_geometry(cfg: ScenarioConfig, profile: trajectory.Profile | None = Non
     )
     freq = signals.slot_frequencies_hz(table)
     slots = ppp.SlotInfo(table.system, freq[:, 0], freq[:, 1])
-    doy = constellation.day_of_year(constellation.DEFAULT_T0_GPS_S)
+    doy = gpstime.day_of_year(constellation.DEFAULT_T0_GPS_S)
     return Geometry(truth, truth_ep, pos, vel, table, slots, orbits, float(doy))
 
 

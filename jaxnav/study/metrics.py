@@ -39,6 +39,7 @@ import numpy as np
 
 from jaxnav import geodesy
 from jaxnav.core import states
+from jaxnav.core.track import Track, track  # noqa: F401  (this module's public names)
 
 # P_nav (filter.tight.EpochOutput) is the leading navigation block: pos (d_lat, d_lon, d_h), vel
 # ENU, then attitude / azimuth. Every layout in core.states starts that way.
@@ -46,20 +47,6 @@ _POS = states.INS15.sl("pos")
 _VEL = states.INS15.sl("vel")
 for _layout in (states.INS21, states.INS27, states.RISS16, states.RISS9):
     assert _layout.sl("pos") == _POS and _layout.sl("vel") == _VEL
-
-
-class Track(NamedTuple):
-    """A navigation history: estimate or truth at the GNSS epochs."""
-
-    llh: jnp.ndarray  # [T, 3] lat [rad], lon [rad], h [m]
-    vel_enu: jnp.ndarray  # [T, 3] [m/s]
-    azimuth: jnp.ndarray  # [T] [rad], clockwise from north
-
-
-def track(llh, vel_enu, euler) -> Track:
-    """Track from llh, vel_enu and Euler angles (roll, pitch, azimuth), e.g. an EpochOutput or a
-    sim.trajectory.Truth at the epochs."""
-    return Track(jnp.asarray(llh), jnp.asarray(vel_enu), jnp.asarray(euler)[..., 2])
 
 
 class MetricConfig(NamedTuple):

@@ -69,6 +69,7 @@ from tqdm.auto import tqdm
 
 import jaxnav
 from jaxnav import geodesy
+from jaxnav.core.ops import FilterOps
 from jaxnav.sim.constellation import DEFAULT_ELEVATION_MASK_RAD
 from jaxnav.sim.trajectory import Event
 from jaxnav.study import metrics as mt
@@ -95,15 +96,6 @@ _UNITS = {
 # ----------------------------------------------------------------------------------------------
 # What the engine needs from a filter and a scenario builder
 # ----------------------------------------------------------------------------------------------
-class FilterOps(NamedTuple):
-    """How the engine drives a filter (any filter with the ``tight.run`` contract)."""
-
-    run: Callable  # (tf, carry, inputs [T, ...]) -> (carry, outputs [T, ...])
-    readout: Callable  # outputs [T, ...] -> (metrics.Track, P_nav [T, k, k] or None)
-    get_keep: Callable  # inputs -> keep [T, S] bool
-    with_keep: Callable  # (inputs, keep [T, S]) -> inputs
-
-
 @functools.cache
 def tight_ops() -> FilterOps:
     """FilterOps of ``jaxnav.filter.tight`` (EpochInput.keep, EpochOutput llh/vel/euler/P_nav)."""

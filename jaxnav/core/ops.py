@@ -1,0 +1,16 @@
+"""What the sweep engine needs from a filter: ``FilterOps`` (a filter layer module provides
+one, ``study/sweep.py`` drives it)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+
+class FilterOps(NamedTuple):
+    """How the engine drives a filter (any filter with the ``tight.run`` contract)."""
+
+    run: Callable  # (tf, carry, inputs [T, ...]) -> (carry, outputs [T, ...])
+    readout: Callable  # outputs [T, ...] -> (core.track.Track, P_nav [T, k, k] or None)
+    get_keep: Callable  # inputs -> keep [T, S] bool
+    with_keep: Callable  # (inputs, keep [T, S]) -> inputs
