@@ -1,8 +1,8 @@
 """XLA:CPU fusion emitters: compile and run time of jaxnav's kernels with each, and their numbers.
 
-jaxnav (``jaxnav/__init__.py``) selects XLA:CPU's older fusion emitters
-(``--xla_cpu_use_fusion_emitters=false``) on the jaxlib releases where this script measured
-them faster to compile and no slower to run. Each kernel is compiled and timed in a fresh
+``JAXNAV_XLA_FUSION_EMITTERS=0`` makes ``import jaxnav`` select XLA:CPU's older fusion emitters
+(``--xla_cpu_use_fusion_emitters=false``, honoured on the jaxlib release this script measured);
+the test suite does, users may. Each kernel is compiled and timed in a fresh
 process (XLA reads its flags once, when the CPU backend starts), the two settings alternating
 (A B A B ...) so that the machine's drift hits both alike; the persistent compilation cache is
 off in the children, so every compilation is a real one. Kernels, on one simulated 5-min drive:
@@ -167,7 +167,7 @@ def main(argv=None) -> int:
     md = [
         f"Median of {rounds} alternating fresh-process run(s) per setting, batch {batch}, "
         "5-min drive; compile cache off. `default` = XLA's MLIR fusion emitters, `older` = "
-        "`--xla_cpu_use_fusion_emitters=false` (jaxnav's choice on this jaxlib). For `sweep` "
+        "`--xla_cpu_use_fusion_emitters=false` (`JAXNAV_XLA_FUSION_EMITTERS=0`). For `sweep` "
         "the call column is the sweep's wall time less its compilation.",
         "",
         "| kernel | compile default [s] | compile older [s] | ratio | call default [s] | "

@@ -346,6 +346,27 @@ def test_esbc_doppler_matches_code_rate(esbc_hour):
     assert np.nanmax(np.abs(dop)) < 1000.0  # GPS range rates are below ~900 m/s
 
 
+def test_esbc_navigation_file_keeps_galileo_and_beidou_records():
+    """sbf2rin (the ESBC file's writer) leaves 'spare' fields blank inside Galileo and BeiDou
+    records; georinex drops such a record whole (all NaN) unless the blanks are zero-filled
+    first (io/nav.py). Every record of the file must come back: 1602 Galileo, 357 BeiDou
+    (counted with awk on the file), with semi-major axes of the systems' orbits."""
+    _need(NAV)
+    nav = read_rinex_nav(NAV, use={"E", "C"})
+    # Galileo: nominal 29,600 km and E14 / E18 on their eccentric orbits (27,977 km); BeiDou:
+    # MEO 27,906 km and GEO / IGSO 42,164 km.
+    axes = {"E": [29_600, 27_977], "C": [27_906, 42_164]}
+    for letter, n_records in (("E", 1602), ("C", 357)):
+        axes_km = axes[letter]
+        sv = [s for s in nav.sv.values if str(s).startswith(letter)]
+        a_km = nav["sqrtA"].sel(sv=sv).values ** 2 / 1e3
+        a_km = a_km[np.isfinite(a_km)]
+        assert a_km.size == n_records, letter
+        ax = np.array(axes_km, dtype=float)[None]
+        rel = np.min(np.abs(a_km[:, None] - ax) / ax, axis=1)
+        assert np.all(rel < 0.01), letter  # each record within 1 % of one of the orbits
+
+
 def test_esbc_navigation_file():
     _need(NAV)
     nav = read_rinex_nav(NAV, use={"G"})

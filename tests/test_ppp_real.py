@@ -37,6 +37,8 @@ from jaxnav import geodesy
 from jaxnav.core.states import StateLayout
 from jaxnav.filter import ppp_only
 from jaxnav.gnss import corrections, models, ppp, signals
+from jaxnav.gnss.slips import detect_slips
+from jaxnav.gnss.spp import spp
 from jaxnav.io import prepare as prep_mod
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "esbc_static"
@@ -123,7 +125,7 @@ def test_slip_detectors_flag_injected_slips_only():
     gf[80:, 1] += 0.0  # (a wide-lane slip with N1 = N2 leaves GF unchanged: MW must catch it)
     have[40:45, 2] = False  # a gap: no flag (the filter restarts the arc itself)
     floor = np.full((T, S), 0.25 * lam_wl)  # the zenith floor of PrepareOptions
-    gf_slip, mw_slip = prep_mod.detect_slips(
+    gf_slip, mw_slip = detect_slips(
         jnp.asarray(gf), jnp.asarray(mw), jnp.asarray(have), jnp.asarray(floor), 0.05, 4.0
     )
     gf_slip, mw_slip = np.asarray(gf_slip), np.asarray(mw_slip)
@@ -159,7 +161,7 @@ def test_spp_converges_from_the_earth_centre():
         rx_llh[0], rx_llh[2]
     ) + m_w * corrections.saastamoinen_zwd_m(rx_llh[2])
     pr = np.asarray(geo.range_m) + 1234.5 - sc + np.asarray(trop)
-    res = prep_mod.spp(
+    res = spp(
         jnp.asarray(pr)[None],
         jnp.asarray(sat_tx)[None],
         jnp.asarray(sc)[None],

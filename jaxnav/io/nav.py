@@ -38,7 +38,9 @@ from jaxnav.gnss.signals import SYS_GAL, SYS_GLO, SYS_GPS
 from jaxnav.io.errors import InputError
 from jaxnav.io.rinex import _header, _read_text, _version_type
 
-_NAV_LINES = {"G": 7, "E": 7, "R": 3}  # continuation lines per record (RINEX 3)
+# continuation lines per record (RINEX 3.04 A6-A16): GPS, Galileo, BeiDou, QZSS, NavIC 7;
+# GLONASS, SBAS 3
+_NAV_LINES = {"G": 7, "E": 7, "C": 7, "J": 7, "I": 7, "R": 3, "S": 3}
 _FIELD = 19
 _BLANK_FIELD = " 0.000000000000E+00"
 

@@ -67,6 +67,8 @@ from jaxnav.core import gpstime
 from jaxnav.geodesy import C_LIGHT
 from jaxnav.gnss import corrections, ephemeris, models, signals, tides, windup
 from jaxnav.gnss.ppp_data import EpochInput, GnssObs, SlotInfo
+from jaxnav.gnss.slips import detect_slips
+from jaxnav.gnss.spp import SppResult, fill_positions, spp  # noqa: F401  (SppResult re-exported)
 from jaxnav.io.products import (
     ClockInterp,
     ClockTable,
@@ -102,7 +104,6 @@ SINGLE_SIGNALS = {
 _MIN_RANGE_M = 1.9e7  # plausible pseudorange bounds (MEO satellites seen from the ground)
 _MAX_RANGE_M = 3.0e7
 _NOMINAL_TRAVEL_S = 0.075  # used only where no code is present (the slot is unavailable anyway)
-_SPP_MASK_RAD = math.radians(10.0)  # chosen: the filter's default mask (S000 QC)
 
 
 def rinex_requests(freq: str, systems) -> dict[str, tuple[str, ...]]:
@@ -371,169 +372,6 @@ def _broadcast_states(eph_sub, t_rx, travel_s) -> _SatProducts:
 
 
 # ------------------------------------------------------------------------------------------------
-# Single-point positioning (least squares, per epoch, pure JAX)
-# ------------------------------------------------------------------------------------------------
-
-
-class SppResult(NamedTuple):
-    pos_ecef: jnp.ndarray  # [T, 3]
-    clock_m: jnp.ndarray  # [T, n_sys] receiver clock per constellation
-    ok: jnp.ndarray  # [T] bool
-    n_used: jnp.ndarray  # [T]
-    rms_m: jnp.ndarray  # [T] post-fit residual RMS
-
-
-def spp(
-    pr_m,
-    sat_pos,
-    sat_clock_m,
-    usable,
-    system,
-    n_sys,
-    day_of_year,
-    x0=None,
-    mask_rad=_SPP_MASK_RAD,
-    iono_l1_m=None,
-    iterations=10,
-):
-    """Epoch-wise weighted least-squares SPP from corrected pseudoranges ([T, S] inputs).
-
-    Model: pr = |R3(we tau) r^s - r| + c dt_sys - c dt^s + T(E) (+ I), with Saastamoinen +
-    Niell troposphere once the iterate is within ~200 km of the surface, weights from S001
-    eq 11, one clock per constellation (a weak 1e-6 prior keeps absent systems regular).
-    Gauss-Newton from ``x0`` (default: the Earth's centre, from which least squares converges).
-    """
-    T, S = pr_m.shape
-    iono = jnp.zeros((T, S)) if iono_l1_m is None else jnp.asarray(iono_l1_m)
-    x_init = jnp.zeros(3) if x0 is None else jnp.asarray(x0, dtype=jnp.float64)
-    out = _spp_batch(
-        jnp.asarray(pr_m),
-        sat_pos,
-        sat_clock_m,
-        jnp.asarray(usable),
-        jnp.asarray(system),
-        jnp.asarray(day_of_year),
-        x_init,
-        iono,
-        jnp.asarray(mask_rad),
-        n_sys=n_sys,
-        iterations=iterations,
-    )
-    return SppResult(*out)
-
-
-@partial(jax.jit, static_argnames=("n_sys", "iterations"))
-def _spp_batch(
-    pr_m,
-    sat_pos,
-    sat_clock_m,
-    usable,
-    system,
-    day_of_year,
-    x_init,
-    iono,
-    mask_rad,
-    n_sys,
-    iterations,
-):
-    onehot = (system[:, None] == jnp.arange(n_sys)[None, :]).astype(jnp.float64)  # [S, n_sys]
-    prior = jnp.diag(jnp.concatenate([jnp.zeros(3), jnp.full(n_sys, 1e-6)]))
-
-    def one(pr, sp, sc, use, doy, io):
-        def body(state, _):
-            x, clk = state
-            sat = models.SatEpoch(sp, jnp.zeros_like(sp), sc, jnp.zeros_like(sc))
-            geo = models.geometry(x, jnp.zeros(3), sat)
-            # Troposphere and mask only once the iterate is near the surface (the first steps
-            # from the Earth's centre pass through heights where Berg's pressure is undefined).
-            r = jnp.linalg.norm(x)
-            near = (r > 6.2e6) & (r < 6.6e6)
-            llh = geodesy.ecef_to_llh(jnp.where(near, x, jnp.array([6378137.0, 0.0, 0.0])))
-            el, _ = models.elevation_azimuth(geo.los_ecef, geodesy.C_l_e(llh[0], llh[1]).T)
-            el_c = jnp.maximum(el, math.radians(3.0))
-            h_c = jnp.clip(llh[2], -500.0, 9000.0)
-            trop = corrections.tropo_slant_delay_m(el_c, llh[0], h_c, doy)
-            trop = jnp.where(near, trop, 0.0)
-            ok = use & jnp.where(near, el >= mask_rad, True)
-            pred = geo.range_m + onehot @ clk - sc + trop + io
-            dz = jnp.where(ok, pr - pred, 0.0)
-            sig = models.elevation_sigma(1.0, jnp.where(near, el, 1.5))
-            w = jnp.where(ok, 1.0 / sig**2, 0.0)
-            H = jnp.concatenate([-geo.los_ecef, onehot], axis=1)
-            N = H.T @ (H * w[:, None]) + prior
-            dx = jnp.linalg.solve(N, H.T @ (w * dz))
-            return (x + dx[:3], clk + dx[3:]), (ok, dz)
-
-        (x, clk), (oks, dzs) = jax.lax.scan(body, (x_init, jnp.zeros(n_sys)), None, iterations)
-        ok, dz = oks[-1], dzs[-1]
-        n = jnp.sum(ok)
-        rms = jnp.sqrt(jnp.sum(jnp.where(ok, dz * dz, 0.0)) / jnp.maximum(n, 1))
-        n_sys_used = jnp.sum(jnp.any(ok[:, None] & (onehot > 0), axis=0))
-        good = (n >= 3 + n_sys_used) & (rms < 30.0) & jnp.all(jnp.isfinite(x))
-        return x, clk, good, n, rms
-
-    return jax.vmap(one)(pr_m, sat_pos, sat_clock_m, usable, day_of_year, iono)
-
-
-def _fill_positions(pos, ok):
-    """Replace failed epochs by the nearest good one (host numpy)."""
-    good = np.flatnonzero(ok)
-    if good.size == 0:
-        raise ValueError("single-point positioning failed at every epoch (check products/signals)")
-    idx = np.arange(pos.shape[0])
-    nearest = good[np.clip(np.searchsorted(good, idx), 0, good.size - 1)]
-    before = good[np.clip(np.searchsorted(good, idx) - 1, 0, good.size - 1)]
-    pick = np.where(np.abs(before - idx) < np.abs(nearest - idx), before, nearest)
-    return np.where(ok[:, None], pos, pos[pick])
-
-
-# ------------------------------------------------------------------------------------------------
-# Slip detection (lax.scan over epochs)
-# ------------------------------------------------------------------------------------------------
-
-
-@jax.jit
-def detect_slips(gf_m, mw_m, have, mw_floor_m, gf_threshold_m, mw_sigmas, min_arc=10):
-    """Geometry-free and Melbourne-Wuebbena slip flags per epoch and slot ([T, S] inputs).
-
-    GF: |GF_k - GF_prev| > threshold, prev = the slot's previous epoch with data. MW: running
-    arc mean m and variance v (Welford); slip if |MW_k - m| > n_sigma max(s, floor_k) where
-    s = sqrt(v) once the arc has ``min_arc`` epochs (a short arc's sample std is unreliable,
-    so the floor alone is used before). ``mw_floor_m`` [T, S] is the noise floor in metres. A
-    slot without data at k-1 starts a new arc (the filter restarts it anyway).
-    Returns (gf_slip, mw_slip), both [T, S] bool.
-    """
-    S = gf_m.shape[1]
-
-    def step(c, x):
-        prev_gf, mean, m2, n, prev_have = c
-        gf, mw, hv, floor = x
-        cont = hv & prev_have
-        gf_slip = cont & (jnp.abs(gf - prev_gf) > gf_threshold_m)
-        std = jnp.where(n >= min_arc, jnp.sqrt(m2 / jnp.maximum(n - 1.0, 1.0)), 0.0)
-        mw_slip = cont & (n >= 1.0) & (jnp.abs(mw - mean) > mw_sigmas * jnp.maximum(std, floor))
-        restart = ~cont | gf_slip | mw_slip
-        n_new = jnp.where(restart, 1.0, n + 1.0)
-        delta = mw - mean
-        mean_new = jnp.where(restart, mw, mean + delta / n_new)
-        m2_new = jnp.where(restart, 0.0, m2 + delta * (mw - mean_new))
-        keep = ~hv  # no data: hold the memory, mark the gap
-        new = (
-            jnp.where(keep, prev_gf, gf),
-            jnp.where(keep, mean, mean_new),
-            jnp.where(keep, m2, m2_new),
-            jnp.where(keep, n, n_new),
-            hv,
-        )
-        return new, (gf_slip, mw_slip)
-
-    z = jnp.zeros(S)
-    init = (z, z, z, z, jnp.zeros(S, bool))
-    _, (gf_slip, mw_slip) = jax.lax.scan(step, init, (gf_m, mw_m, have, mw_floor_m))
-    return gf_slip, mw_slip
-
-
-# ------------------------------------------------------------------------------------------------
 # Main entry
 # ------------------------------------------------------------------------------------------------
 
@@ -677,7 +515,7 @@ def prepare_gnss(
             x0,
             opt.spp_mask_rad,
         )
-        rx_first = _fill_positions(np.asarray(first.pos_ecef), np.asarray(first.ok))
+        rx_first = fill_positions(np.asarray(first.pos_ecef), np.asarray(first.ok))
         iono_for_spp = jnp.asarray(_iono_model(opt, products, rx_first, sat, t_rx, f1))
     res = spp(
         jnp.asarray(np.nan_to_num(pr)),
@@ -693,13 +531,13 @@ def prepare_gnss(
     )
     spp_pos = np.asarray(res.pos_ecef)
     spp_ok = np.asarray(res.ok)
-    approx = _fill_positions(spp_pos, spp_ok)
+    approx = fill_positions(spp_pos, spp_ok)
     # A-priori receiver clock: the SPP clock of the first constellation (nearest good epoch
     # where SPP failed). Receivers keep offsets of up to a millisecond (ESBC: 0.48 ms = 144 km)
     # and may jump by whole milliseconds; removing it from code and phase alike leaves the
     # filter's clock state a metre-level residual, whatever the receiver does.
     sys0 = int(np.min(arr.system))
-    rx_clock = _fill_positions(np.asarray(res.clock_m)[:, sys0 : sys0 + 1], spp_ok)[:, 0]
+    rx_clock = fill_positions(np.asarray(res.clock_m)[:, sys0 : sys0 + 1], spp_ok)[:, 0]
     if not opt.remove_spp_clock:
         rx_clock = np.zeros(T)
     if static_receiver:

@@ -1,0 +1,302 @@
+"""``jaxnav lc``'s car configuration: the TOML file (``configs/car_gnss_imu_drive.toml``
+documents every key), checked key by key before any work, and the lever arms and IMU error model
+it gives."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+import jaxnav  # noqa: F401  (float64)
+from jaxnav.core import states as st
+from jaxnav.ins import errors as ins_errors
+from jaxnav.io import imu as imu_io
+
+LAYOUTS = {"ins15": st.INS15, "ins21": st.INS21, "ins27": st.INS27}
+#: Sweep modes: which vehicle constraints the filter uses (ZUPT includes ZARU).
+SWEEP_MODES = {"nhc_zupt": (True, True), "zupt": (False, True), "nhc": (True, False),
+               "free": (False, False)}  # fmt: skip
+# Body forward-right-down (the source configuration's lever arms) -> right-forward-up.
+_FRD_TO_RFU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_DEG_H = math.pi / 180.0 / 3600.0  # rad/s per deg/h
+UG_M_S2 = imu_io.STANDARD_GRAVITY * 1e-6  # m/s^2 per micro-g
+
+
+# ----------------------------------------------------------------------------------------------
+# Car configuration (TOML)
+# ----------------------------------------------------------------------------------------------
+class CarConfigError(ValueError):
+    """An invalid car configuration; the message names the file, section, key and expectation."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CarConfig:
+    """Everything ``jaxnav lc`` needs about the vehicle, its sensors and the filter.
+
+    Field names are ``section_key`` of the TOML; units are in the names. Sources of the values
+    are given in ``configs/car_gnss_imu_drive.toml``; the defaults here are only for the keys
+    that are not sensor-specific (the mounting, lever arms and noise densities are required).
+    """
+
+    # [imu]
+    imu_mounting_rpy_deg: tuple[float, float, float]
+    imu_misalignment_rpy_deg: tuple[float, float, float]
+    imu_time_offset_s: float
+    imu_gyro_unit: str = "deg/s"
+    imu_accel_unit: str = "g"
+    imu_resample_hz: float = 100.0
+    # [imu_errors]
+    imu_errors_states: str = "ins27"
+    imu_errors_gyro_noise_deg_s_sqrt_hz: float = float("nan")
+    imu_errors_accel_noise_ug_sqrt_hz: float = float("nan")
+    imu_errors_gyro_vibration_deg_s_sqrt_hz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    imu_errors_accel_vibration_ug_sqrt_hz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    imu_errors_gyro_bias_turn_on_deg_s: float = 0.5
+    imu_errors_gyro_bias_gm_sigma_deg_h: float = 36.0
+    imu_errors_gyro_bias_gm_tau_s: float = 300.0
+    imu_errors_accel_bias_turn_on_mg: float = 40.0
+    imu_errors_accel_bias_gm_sigma_mg: float = 0.5
+    imu_errors_accel_bias_gm_tau_s: float = 300.0
+    imu_errors_gyro_scale_ppm: float = 10000.0
+    imu_errors_accel_scale_ppm: float = 10000.0
+    # [lever_arms] body forward, right, down [m] from the vehicle reference point
+    lever_arms_imu_frd_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    lever_arms_antenna_frd_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    lever_arms_nhc_point_frd_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # [gnss]
+    gnss_use_velocity: bool = True
+    gnss_pos_sigma_floor_m: float = 0.05
+    gnss_vel_sigma_floor_m_s: float = 0.02
+    # [constraints]
+    constraints_nhc: bool = True
+    constraints_nhc_sigma_m_s: float = 1.0
+    constraints_zupt: bool = True
+    constraints_zaru: bool = True
+    constraints_zupt_sigma_m_s: float = 0.02
+    constraints_zupt_threshold: float = 2.5
+    constraints_zupt_ref_sigma_m_s2: str | float = "start"
+    constraints_zupt_max_speed_m_s: float = 1.0
+    constraints_zupt_with_gnss_vel: bool = False
+    constraints_zupt_gnss_speed_m_s: float = 0.1
+    # [alignment]
+    alignment_level_s: float = 1.0
+    alignment_min_speed_m_s: float = 3.0
+    alignment_heading_floor_deg: float = 1.15
+    alignment_roll_pitch_sigma_deg: float = 3.0
+    alignment_vel_sigma_m_s: float = 0.1
+    # [filter]
+    filter_cov_substeps: int = 5
+    filter_gate_chi2: float = float("inf")
+    # [sweep]
+    sweep_modes: tuple[str, ...] = ("nhc_zupt", "zupt")
+    sweep_durations_s: tuple[float, ...] = (10.0, 15.0, 30.0)
+    sweep_spacing_s: float = 5.0
+    sweep_convergence_s: float = 60.0
+    sweep_recovery_s: float = 10.0
+    sweep_chunk_size: int = 128
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+
+_REQUIRED = (
+    "imu_mounting_rpy_deg", "imu_misalignment_rpy_deg", "imu_time_offset_s",
+    "imu_errors_gyro_noise_deg_s_sqrt_hz", "imu_errors_accel_noise_ug_sqrt_hz",
+    "lever_arms_imu_frd_m", "lever_arms_antenna_frd_m",
+)  # fmt: skip
+_SECTIONS = ("imu", "imu_errors", "lever_arms", "gnss", "constraints", "alignment", "filter",
+             "sweep")  # fmt: skip
+# Value checks per field kind: (predicate, expectation text).
+_NONNEG = ("a number >= 0", lambda v: v >= 0)
+_POS = ("a number > 0", lambda v: v > 0)
+_ANY = ("a number", lambda v: True)
+_CHECKS: dict[str, tuple[str, Any]] = {
+    "imu_time_offset_s": _ANY,
+    "imu_resample_hz": _POS,
+    "imu_errors_gyro_noise_deg_s_sqrt_hz": _POS,
+    "imu_errors_accel_noise_ug_sqrt_hz": _POS,
+    "imu_errors_gyro_bias_gm_tau_s": _POS,
+    "imu_errors_accel_bias_gm_tau_s": _POS,
+    "constraints_nhc_sigma_m_s": _POS,
+    "constraints_zupt_sigma_m_s": _POS,
+    "constraints_zupt_threshold": _POS,
+    "constraints_zupt_max_speed_m_s": _POS,
+    "constraints_zupt_gnss_speed_m_s": _POS,
+    "alignment_level_s": _POS,
+    "alignment_min_speed_m_s": _POS,
+    "filter_gate_chi2": _POS,
+    "sweep_spacing_s": _POS,
+    "sweep_convergence_s": _NONNEG,
+    "sweep_recovery_s": _NONNEG,
+}
+_CHOICES = {
+    "imu_gyro_unit": ("deg/s", "rad/s"),
+    "imu_accel_unit": ("g", "m/s^2"),
+    "imu_errors_states": tuple(LAYOUTS),
+}
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _field_types() -> dict[str, Any]:
+    return {f.name: f.type for f in dataclasses.fields(CarConfig)}
+
+
+def _convert(source: str, name: str, value, ftype: str):
+    section, key = next(
+        (s, name[len(s) + 1 :]) for s in sorted(_SECTIONS, key=len, reverse=True)
+        if name.startswith(s + "_")
+    )
+    where = f"{source}: [{section}] {key} = {value!r}"
+
+    def fail(expected):
+        raise CarConfigError(f"{where}: expected {expected}")
+
+    if ftype == "bool":
+        if not isinstance(value, bool):
+            fail("true or false")
+        return value
+    if ftype == "str":
+        allowed = _CHOICES.get(name)
+        if not isinstance(value, str) or (allowed and value not in allowed):
+            fail("one of " + ", ".join(map(repr, allowed)) if allowed else "a string")
+        return value
+    if ftype == "int":
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            fail("a whole number >= 1")
+        return value
+    if ftype == "float":
+        text, ok = _CHECKS.get(name, _NONNEG)
+        if name == "filter_gate_chi2" and value == "inf":
+            return float("inf")
+        if not _is_num(value) or not ok(value):
+            fail(text + (' (or "inf")' if name == "filter_gate_chi2" else ""))
+        return float(value)
+    if ftype == "str | float":  # constraints.zupt_ref_sigma_m_s2
+        if value == "start":
+            return value
+        if not _is_num(value) or value <= 0:
+            fail('"start" or a number > 0')
+        return float(value)
+    if ftype == "tuple[float, float, float]":
+        ok3 = isinstance(value, list) and len(value) == 3 and all(map(_is_num, value))
+        if "vibration" in name and ok3 and min(value) < 0:
+            ok3 = False
+        if not ok3:
+            fail("a list of 3 numbers" + (" >= 0" if "vibration" in name else ""))
+        return tuple(float(v) for v in value)
+    if ftype == "tuple[float, ...]":
+        if not isinstance(value, list) or not value or not all(_is_num(v) and v > 0
+                                                             for v in value):
+            fail("a non-empty list of numbers > 0")
+        if len(set(value)) != len(value):
+            fail("distinct values")
+        return tuple(float(v) for v in value)
+    if ftype == "tuple[str, ...]":
+        if (not isinstance(value, list) or not value
+                or not all(isinstance(v, str) and v in SWEEP_MODES for v in value)):
+            fail("a non-empty list of modes from " + ", ".join(map(repr, SWEEP_MODES)))
+        if len(set(value)) != len(value):
+            fail("distinct values")
+        return tuple(value)
+    raise AssertionError(ftype)  # pragma: no cover
+
+
+def config_from_dict(data: Mapping, source: str = "<config>") -> CarConfig:
+    """Validate the TOML tables and build a ``CarConfig`` (errors name file, section and key)."""
+    types = _field_types()
+    values: dict[str, Any] = {}
+    for section, table in data.items():
+        if section not in _SECTIONS:
+            raise CarConfigError(
+                f"{source}: unknown section [{section}]; allowed: "
+                + ", ".join(f"[{s}]" for s in _SECTIONS)
+            )
+        if not isinstance(table, Mapping):
+            raise CarConfigError(f"{source}: {section} = {table!r}: expected a [{section}] table")
+        for key, value in table.items():
+            name = f"{section}_{key}"
+            allowed = [f[len(section) + 1 :] for f in types if f.startswith(section + "_")
+                       and not any(f.startswith(s + "_") for s in _SECTIONS
+                                   if len(s) > len(section) and s.startswith(section))]
+            if name not in types or key not in allowed:
+                raise CarConfigError(
+                    f"{source}: unknown key [{section}] {key}; allowed keys in [{section}]: "
+                    + ", ".join(allowed)
+                )
+            values[name] = _convert(source, name, value, types[name])
+    missing = [n for n in _REQUIRED if n not in values]
+    if missing:
+        n = missing[0]
+        section = next(s for s in sorted(_SECTIONS, key=len, reverse=True)
+                       if n.startswith(s + "_"))
+        raise CarConfigError(
+            f"{source}: missing key [{section}] {n[len(section) + 1 :]} (sensor-specific, no "
+            f"default)"
+        )
+    cfg = CarConfig(**values)
+    k = cfg.imu_resample_hz
+    if abs(k - round(k)) > 1e-9:
+        raise CarConfigError(f"{source}: [imu] resample_hz = {k!r}: expected a whole number of Hz")
+    return cfg
+
+
+def load_config(path: str | os.PathLike) -> CarConfig:
+    """Read and validate a car configuration TOML file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise CarConfigError(f"{path}: cannot read the configuration: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CarConfigError(f"{path}: not valid TOML: {exc}") from None
+    return config_from_dict(data, str(path))
+
+
+def _frd_to_rfu(v) -> np.ndarray:
+    return _FRD_TO_RFU @ np.asarray(v, np.float64)
+
+
+def lever_arms_b(cfg: CarConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(antenna, NHC point) offsets from the IMU in body right-forward-up axes [m]."""
+    imu = np.asarray(cfg.lever_arms_imu_frd_m)
+    ant = _frd_to_rfu(np.asarray(cfg.lever_arms_antenna_frd_m) - imu)
+    nhc = _frd_to_rfu(np.asarray(cfg.lever_arms_nhc_point_frd_m) - imu)
+    return ant, nhc
+
+
+def imu_error_model(cfg: CarConfig) -> ins_errors.ImuErrorModel:
+    """The filter's stochastic IMU model from the configuration.
+
+    White noise density -> ARW / VRW (deg/s/sqrt(Hz) = deg/sqrt(s)); the sensor's own density
+    and the installed vibration density (per body axis) add in quadrature.
+    """
+    gyro = np.hypot(cfg.imu_errors_gyro_noise_deg_s_sqrt_hz,
+                    np.asarray(cfg.imu_errors_gyro_vibration_deg_s_sqrt_hz))
+    accel = np.hypot(cfg.imu_errors_accel_noise_ug_sqrt_hz,
+                     np.asarray(cfg.imu_errors_accel_vibration_ug_sqrt_hz))
+    return ins_errors.ImuErrorModel(
+        accel_vrw_m_s_sqrt_s=jnp.asarray(accel * UG_M_S2),
+        gyro_arw_rad_sqrt_s=jnp.asarray(np.radians(gyro)),
+        accel_bias_sigma_m_s2=cfg.imu_errors_accel_bias_gm_sigma_mg * 1e3 * UG_M_S2,
+        accel_bias_tau_s=cfg.imu_errors_accel_bias_gm_tau_s,
+        gyro_bias_sigma_rad_s=cfg.imu_errors_gyro_bias_gm_sigma_deg_h * _DEG_H,
+        gyro_bias_tau_s=cfg.imu_errors_gyro_bias_gm_tau_s,
+        accel_scale_sigma=cfg.imu_errors_accel_scale_ppm * 1e-6,
+        gyro_scale_sigma=cfg.imu_errors_gyro_scale_ppm * 1e-6,
+        accel_bias_ton_sigma_m_s2=cfg.imu_errors_accel_bias_turn_on_mg * 1e3 * UG_M_S2,
+        gyro_bias_ton_sigma_rad_s=math.radians(cfg.imu_errors_gyro_bias_turn_on_deg_s),
+    )

@@ -1,0 +1,250 @@
+"""A sweep's files: chunk .npz files beside a manifest (config hash), written atomically, and the
+xarray Dataset assembled from them (``results.nc``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+import jaxnav
+from jaxnav.study import metrics as mt
+from jaxnav.study.config import ALL
+from jaxnav.study.plan import DIMS, Plan
+
+RESULTS_FILE = "results.nc"
+MANIFEST_FILE = "manifest.json"
+CHUNK_DIR = "chunks"
+METRIC_FIELDS = mt.WindowMetrics._fields
+_UNITS = {
+    "max_2d_m": "m", "rms_2d_m": "m", "max_3d_m": "m", "end_2d_m": "m", "end_enu_m": "m",
+    "distance_m": "m", "pct_of_distance": "%", "max_azimuth_err_rad": "rad",
+    "pre_2d_rms_m": "m", "reconv_threshold_m": "m", "reconv_s": "s", "reconverged": "1",
+    "nees_pos": "1", "nees_posvel": "1",
+}
+
+
+# ----------------------------------------------------------------------------------------------
+# Persistence
+# ----------------------------------------------------------------------------------------------
+class _Store:
+    """OUT/manifest.json, OUT/chunks/g###_c######.npz and OUT/results.nc."""
+
+    def __init__(self, out_dir, config_hash: str, manifest: dict):
+        self.dir = Path(out_dir)
+        self.hash = config_hash
+        self.manifest = manifest
+        self.results = self.dir / RESULTS_FILE
+        self.manifest_path = self.dir / MANIFEST_FILE
+        self.chunks = self.dir / CHUNK_DIR
+
+    def chunk_path(self, g: int, j: int) -> Path:
+        return self.chunks / f"g{g:03d}_c{j:06d}.npz"
+
+    def _chunk_files(self):
+        return sorted(self.chunks.glob("g*_c*.npz")) if self.chunks.is_dir() else []
+
+    def _tmp_files(self):
+        return list(self.dir.glob(".*.tmp*")) + (
+            list(self.chunks.glob(".*.tmp*")) if self.chunks.is_dir() else []
+        )
+
+    def prepare(self, resume: bool, overwrite: bool) -> bool:
+        """Apply the overwrite / resume rules; True when a finished result can be reused."""
+        if resume and overwrite:
+            raise ValueError("pass either resume=True or overwrite=True, not both")
+        have_results = self.results.exists()
+        have_partial = self.manifest_path.exists() or bool(self._chunk_files())
+        if overwrite:
+            for p in [self.results, self.manifest_path, *self._chunk_files(), *self._tmp_files()]:
+                p.unlink(missing_ok=True)
+        elif have_results or have_partial:
+            if not resume:
+                if have_results:
+                    raise FileExistsError(
+                        f"{self.results} exists; pass overwrite=True to replace it (or "
+                        f"resume=True to reuse it if it is this study)"
+                    )
+                raise FileExistsError(
+                    f"{self.dir} holds an unfinished sweep ({len(self._chunk_files())} chunk "
+                    f"files); pass resume=True to continue it or overwrite=True to discard it"
+                )
+            if not self.manifest_path.exists():
+                raise FileExistsError(
+                    f"{self.dir} has sweep files but no {MANIFEST_FILE}; cannot tell which "
+                    f"study they belong to: use another directory or overwrite=True"
+                )
+            old = json.loads(self.manifest_path.read_text())
+            new_src = self.manifest.get("jaxnav_source")
+            if old.get("config_hash") != self.hash and old.get("config") == self.manifest.get(
+                "config"
+            ) and old.get("jaxnav_source") != new_src:
+                raise FileExistsError(
+                    f"{self.dir} holds this study computed by other jaxnav code (source hash "
+                    f"{str(old.get('jaxnav_source'))[:12]}, now {str(new_src)[:12]}); resuming "
+                    f"would mix results of two codes: use another directory or overwrite=True"
+                )
+            if old.get("config_hash") != self.hash:
+                raise FileExistsError(
+                    f"{self.dir} holds a sweep of a different study (config hash "
+                    f"{str(old.get('config_hash'))[:12]}, this one {self.hash[:12]}); use "
+                    f"another directory or overwrite=True"
+                )
+            if old.get("n_devices") != self.manifest["n_devices"]:
+                warnings.warn(
+                    f"resuming a sweep started on {old.get('n_devices')} devices on "
+                    f"{self.manifest['n_devices']}: chunks agree to rounding, not bit for bit",
+                    stacklevel=3,
+                )
+            for p in self._tmp_files():  # leftovers of a killed write (never a finished chunk)
+                p.unlink(missing_ok=True)
+            if have_results:
+                return True
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.chunks.mkdir(exist_ok=True)
+        if not self.manifest_path.exists():
+            _atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
+        return False
+
+    def done(self) -> set[tuple[int, int]]:
+        out = set()
+        for p in self._chunk_files():
+            g, j = p.stem.split("_")
+            out.add((int(g[1:]), int(j[1:])))
+        return out
+
+    def write_chunk(self, g: int, j: int, arrays: dict):
+        path = self.chunk_path(g, j)
+        if path.exists():  # a finished chunk is never rewritten
+            raise FileExistsError(f"{path} exists")
+        tmp = self.chunks / f".{path.name}.tmp{os.getpid()}"
+        with tmp.open("wb") as f:
+            np.savez(f, config_hash=np.str_(self.hash), group=g, chunk=j, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+    def read_chunk(self, g: int, j: int, n: int) -> dict:
+        path = self.chunk_path(g, j)
+        try:
+            with np.load(path) as z:
+                data = {k: z[k] for k in z.files}
+        except Exception as e:  # a corrupt file must not be silently skipped
+            raise OSError(f"{path}: cannot read the chunk ({e}); delete it and resume") from e
+        if str(data["config_hash"]) != self.hash or int(data["group"]) != g or int(
+            data["chunk"]
+        ) != j or data["max_2d_m"].shape[0] != n:
+            raise OSError(f"{path}: expected chunk {j} of group {g} of study {self.hash[:12]}")
+        return data
+
+
+def _atomic_write_text(path: Path, text: str):
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------------------------
+# Dataset
+# ----------------------------------------------------------------------------------------------
+def assemble(plan: Plan, store: _Store, groups, config_hash: str) -> xr.Dataset:
+    """The sweep's Dataset from its persisted chunks (named dimensions for every axis)."""
+    cfg = plan.cfg
+    C, N = cfg.chunk_size, plan.n_per_group
+    per_group = []
+    traces = []
+    for g in range(len(groups)):
+        parts = [store.read_chunk(g, j, min(C, N - j * C)) for j in range(plan.n_chunks)]
+        per_group.append({k: np.concatenate([p[k] for p in parts]) for k in METRIC_FIELDS})
+        for p in parts:
+            for flat, err in zip(p["trace_flat"], p["trace_err"], strict=True):
+                traces.append((g, int(flat), err))
+    n_mode, n_sys = len(cfg.modes), len(cfg.systems)
+    lead = (n_mode, n_sys) + plan.shape
+    data_vars = {}
+    for k in METRIC_FIELDS:
+        a = np.stack([pg[k] for pg in per_group]).reshape(lead + per_group[0][k].shape[1:])
+        dims = DIMS + (("enu",) if a.ndim > len(DIMS) else ())
+        data_vars[k] = xr.Variable(dims, a, {"units": _UNITS.get(k, "1")})
+    dt = float(plan.timeline.epoch_dt_s)
+    coords = {
+        "mode": ("mode", np.asarray(cfg.modes, dtype=object)),
+        "system": ("system", np.asarray(cfg.systems, dtype=object)),
+        "realization": ("realization", plan.seeds, {"long_name": "noise realization seed"}),
+        "duration": ("duration", plan.duration_s,
+                     {"units": "s", "long_name": "outage duration (-1: per placement, length_s)"}),
+        "satellites_kept": ("satellites_kept", plan.n_keep,
+                            {"long_name": "satellites kept during the outage (-1: all)"}),
+        "placement": ("placement", np.arange(plan.starts.shape[1])),
+        "policy": ("policy", np.asarray(cfg.policies, dtype=object)),
+        "ramp": ("ramp", plan.ramps * dt, {"units": "s"}),
+        "enu": ("enu", np.asarray(["east", "north", "up"], dtype=object)),
+        "start_s": (("duration", "placement"), plan.starts * dt,
+                    {"units": "s", "long_name": "outage start after the first epoch"}),
+        "length_s": (("duration", "placement"), plan.lengths * dt, {"units": "s"}),
+    }
+    if plan.placement_event is not None:
+        coords["placement_event"] = ("placement", np.asarray(plan.placement_event, dtype=object))
+    if plan.placement_id is not None:
+        coords["placement_id"] = ("placement", np.asarray(plan.placement_id, dtype=object))
+    ds = xr.Dataset(data_vars, coords)
+    if traces:
+        g_idx = np.array([t[0] for t in traces])
+        flat = np.array([t[1] for t in traces])
+        f = plan.scenarios(flat)
+        r, d, k, p, pol, rm = np.unravel_index(flat, plan.shape)
+        L = plan.prefix + plan.window
+        t_rel = (np.arange(L)[None, :] - plan.prefix - f["ramp"][:, None]) * dt
+        ds["trace_err_enu_m"] = xr.Variable(
+            ("trace", "trace_epoch", "enu"), np.stack([t[2] for t in traces]),
+            {"units": "m", "long_name": "estimate - truth, ENU, per epoch (NaN after recovery)"},
+        )
+        ds = ds.assign_coords(
+            trace_time_s=(("trace", "trace_epoch"), t_rel,
+                          {"units": "s", "long_name": "time since the outage start"}),
+            trace_mode=("trace", np.asarray([cfg.modes[i // n_sys] for i in g_idx], object)),
+            trace_system=("trace", np.asarray([cfg.systems[i % n_sys] for i in g_idx], object)),
+            trace_realization=("trace", plan.seeds[r]),
+            trace_duration=("trace", plan.duration_s[d]),
+            trace_satellites_kept=("trace", plan.n_keep[k]),
+            trace_placement=("trace", p),
+            trace_policy=("trace", np.asarray([cfg.policies[i] for i in pol], object)),
+            trace_ramp_s=("trace", plan.ramps[rm] * dt),
+            trace_outage_s=("trace", f["length"] * dt),
+        )
+    ds.attrs.update(
+        {
+            "title": f"jaxnav outage sweep {cfg.name!r}",
+            "config_json": cfg.to_json(),
+            "config_hash": config_hash,
+            "jaxnav_version": jaxnav.__version__,
+            "epoch_dt_s": dt,
+            "n_epochs": int(plan.timeline.n_epochs),
+            "satellites_kept_all": ALL,
+            "metric_window": cfg.metric_window,
+            "recovery_s": plan.recovery * dt,
+            "placement_kind": cfg.placement.kind,
+        }
+    )
+    return ds
+
+
+def netcdf_engine() -> str:
+    """NetCDF-4 writer: h5netcdf when its h5py backend is importable, else netCDF4 (installed
+    with georinex). h5netcdf >= 1.4 no longer pulls in h5py, so a fresh install may lack it."""
+    import importlib.util
+
+    if importlib.util.find_spec("h5py") is not None:
+        return "h5netcdf"
+    if importlib.util.find_spec("netCDF4") is not None:
+        return "netcdf4"
+    raise ImportError("writing NetCDF needs h5py (for h5netcdf) or netCDF4: pip install h5py")
+
+
+def load_results(path: str | os.PathLike) -> xr.Dataset:
+    """Read a sweep's results.nc into memory."""
+    return xr.load_dataset(path, engine=netcdf_engine())
