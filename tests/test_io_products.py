@@ -133,6 +133,27 @@ def test_sp3_synthetic_interpolation_vs_closed_form(tmp_path):
     assert not ok_out.any()
 
 
+def test_products_read_every_compression_the_rinex_reader_does(tmp_path):
+    """One text reader for every format (io/text.py): IGS products come as .gz and, from older
+    archives, Unix-compressed .Z; bzip2 and zip are read too. Same numbers as the plain file;
+    a truncated archive is an InputError naming the file."""
+    import bz2
+    import gzip
+
+    text = ("\n".join(sp3_text()) + "\n").encode()
+    plain = read_sp3(write(tmp_path, sp3_text(), "syn.sp3"))
+    for name, data in (("syn.sp3.gz", gzip.compress(text)), ("syn.sp3.bz2", bz2.compress(text))):
+        p = tmp_path / name
+        p.write_bytes(data)
+        got = read_sp3(p)
+        np.testing.assert_array_equal(got.pos_ecef_m, plain.pos_ecef_m)
+        np.testing.assert_array_equal(got.time_gps_s, plain.time_gps_s)
+    bad = tmp_path / "cut.sp3.gz"
+    bad.write_bytes(gzip.compress(text)[:200])
+    with pytest.raises(InputError, match="cut.sp3.gz.*cannot decompress"):
+        read_sp3(bad)
+
+
 def test_sp3_bad_samples_and_damage(tmp_path):
     def bad_values(lines):
         i = next(k for k, x in enumerate(lines) if x.startswith("PG01") and k > 40)

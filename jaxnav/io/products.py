@@ -25,7 +25,6 @@ mask is False: finite values keep masked arithmetic NaN-free (DESIGN invariant 2
 
 from __future__ import annotations
 
-import gzip
 import warnings
 from collections.abc import Sequence
 from os import PathLike
@@ -38,6 +37,7 @@ import numpy as np
 
 from jaxnav.core.gpstime import datetime64_to_gps_seconds
 from jaxnav.io.errors import InputError
+from jaxnav.io.text import read_text
 
 # Other GNSS time scales -> GPST [s] (GST/QZSST steered to GPST; BDT = GPST - 14 s).
 _TIME_SYSTEM_TO_GPS_S = {"GPS": 0.0, "GAL": 0.0, "QZS": 0.0, "IRN": 0.0, "BDT": 14.0, "": 0.0}
@@ -48,16 +48,7 @@ _GRID_TOL = 1e-6
 
 
 def _open_text(path: Path, what: str) -> list[str]:
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"cannot read {what} file: {exc}", file=path) from exc
-    if raw[:2] == b"\x1f\x8b":
-        try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError) as exc:
-            raise InputError(f"corrupt gzip ({exc})", file=path, expected="a gzip file") from exc
-    return raw.decode("ascii", errors="replace").splitlines()
+    return read_text(path, what).splitlines()
 
 
 def _regular_grid(path, times: np.ndarray, interval: float, what: str):

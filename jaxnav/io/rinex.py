@@ -39,6 +39,7 @@ import numpy as np
 
 from jaxnav.core.gpstime import datetime64_to_gps_seconds
 from jaxnav.io.errors import InputError
+from jaxnav.io.text import read_text as _read_text
 
 # (first PRN, number of slots) per constellation: GPS PRN 1-32, GLONASS slots 1-27 (24 + spares),
 # Galileo 1-36, BeiDou 1-63, QZSS 1-10, SBAS PRN 120-158 (RINEX S20-S58), NavIC 1-14.
@@ -137,30 +138,6 @@ class RinexObs(NamedTuple):
 
 # --------------------------------------------------------------------------------------------
 # Reading and structural checks
-
-
-def _read_text(path: Path) -> str:
-    """File -> RINEX text: gunzip and Hatanaka-expand as needed (hatanaka package)."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"cannot read RINEX file: {exc}", file=path) from exc
-    compressed = raw[:2] in (b"\x1f\x8b", b"\x1f\x9d") or raw[:3] == b"BZh" or raw[:2] == b"PK"
-    if compressed or b"CRINEX VERS" in raw[:80]:
-        # hatanaka.decompress undoes .gz/.Z/.bz2/.zip and the Hatanaka (CRX) compression
-        import hatanaka
-
-        try:
-            raw = hatanaka.decompress(raw)
-        except Exception as exc:  # noqa: BLE001 - any decoder failure is bad input
-            raise InputError(
-                f"cannot decompress ({type(exc).__name__}: {exc})",
-                file=path,
-                expected="plain, gzip/Z/bz2/zip and/or Hatanaka-compressed RINEX",
-            ) from exc
-    if isinstance(raw, bytes):
-        raw = raw.decode("ascii", errors="replace")
-    return raw
 
 
 def _header(path: Path, lines: list[str]) -> tuple[dict, int]:
