@@ -565,7 +565,7 @@ def run(nf: NumpyTightFilter, carry0, inputs, strapdown: str = "scalar") -> dict
     mechanize = {"scalar": _mechanize_scalar, "vector": nn.mechanize}[strapdown]
     c = _to_numpy(carry0)
     inp = _to_numpy(inputs)
-    (nav, prev), sens = c.nav, c.sensors
+    nav, prev, sens = c.nav.state, c.nav.prev, c.sensors
     st = dict(
         llh=nav.llh, vel=nav.vel_enu, q=nav.q_b_l, prev_dth=prev.dtheta_b, prev_dv=prev.dv_b,
         accel_bias=sens.accel_bias_m_s2, gyro_bias=sens.gyro_bias_rad_s,

@@ -596,9 +596,9 @@ def run_ins(sz, repeats):
     )
 
     nav0 = (
-        np.asarray(carry0.nav[0].llh),
-        np.asarray(carry0.nav[0].vel_enu),
-        np.asarray(carry0.nav[0].q_b_l),
+        np.asarray(carry0.nav.state.llh),
+        np.asarray(carry0.nav.state.vel_enu),
+        np.asarray(carry0.nav.state.q_b_l),
     )
     P0 = np.asarray(carry0.P)
 

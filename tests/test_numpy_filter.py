@@ -144,7 +144,7 @@ def test_one_epoch_from_identical_state(case):
     ep = jax.tree.map(lambda a: np.asarray(a[T]), prob.inputs)  # the next epoch of the drive
     new, _ = jax.jit(lambda c, i: tight.epoch_step(prob.tf, c, i))(carry, ep)
     res = nfm.run(nf, carry, jax.tree.map(lambda a: a[None], ep))["final"]
-    state, _ = new.nav
+    state = new.nav.state
     dpos = np.abs((res["llh"] - state.llh) * np.asarray(geodesy.metres_per_radian(state.llh)))
     P = np.asarray(new.P)
     dP = np.max(np.abs(res["P"] - P) / np.sqrt(np.outer(np.diag(P), np.diag(P))))

@@ -62,7 +62,7 @@ def _systems():
         accel_bias_sigma_m_s2=1e-3, gyro_bias_tau_s=300.0, gyro_bias_sigma_rad_s=1e-5,
     )
     ins = systems.InsSystem(INS15, model, lever)
-    nav_i = (
+    nav_i = strapdown.InsNav(
         strapdown.nav_state(LLH0, jnp.array([9.0, -5.0, 0.3]), jnp.array([0.02, -0.03, 2.1])),
         strapdown.ImuIncrements(jnp.zeros(3), jnp.zeros(3)),
     )

@@ -247,9 +247,10 @@ def alignment_epoch(vel_enu, valid, min_speed_m_s=5.0):
 
 
 def initial_nav(llh, vel_enu, euler_rpa):
-    """InsSystem navigation state: (NavState, zero previous sample for coning/sculling)."""
+    """InsSystem navigation state: the NavState and a zero previous sample (coning/sculling)."""
     z = jnp.zeros(3, jnp.float64)
-    return (strapdown.nav_state(llh, vel_enu, euler_rpa), strapdown.ImuIncrements(z, z))
+    return strapdown.InsNav(strapdown.nav_state(llh, vel_enu, euler_rpa),
+                            strapdown.ImuIncrements(z, z))
 
 
 def initial_carry(lf: LooseFilter, nav0, sigmas: NavSigmas | None = None, P0=None) -> Carry:
@@ -348,7 +349,7 @@ def _align_in_motion(lf: LooseFilter, layout, nav, P, fix: GnssFix, aligned):
     for the IMU's (the lever-arm rotation term is neglected: the vehicle is starting off, not
     turning hard). Returns (nav, P, aligned, aligned_now).
     """
-    state, prev = nav
+    state, prev = nav.state, nav.prev
     speed_h = jnp.hypot(fix.vel_enu[0], fix.vel_enu[1])
     do = ~aligned & fix.vel_valid & fix.pos_valid & (speed_h > lf.cfg.align_min_speed_m_s)
     euler = attitude.euler_from_quat(state.q_b_l)
@@ -370,7 +371,7 @@ def _align_in_motion(lf: LooseFilter, layout, nav, P, fix: GnssFix, aligned):
     var = var.at[pos].set(var_pos[jnp.array([1, 0, 2])])  # (lat, lon, h) order
     var = var.at[vel].set(jnp.diag(fix.cov_vel_enu))
     att = layout.sl("att")
-    M = attitude.dcm_from_quat(q_new) @ attitude.dcm_from_quat(nav[0].q_b_l).T
+    M = attitude.dcm_from_quat(q_new) @ attitude.dcm_from_quat(nav.state.q_b_l).T
     T = jnp.eye(layout.size).at[att, att].set(M)
     _, P_new = ekf.reset_states(jnp.zeros(layout.size), T @ P @ T.T, flags, var)
     # With the heading unknown, a horizontal gyro bias and the horizontal Earth rate projected
@@ -381,7 +382,7 @@ def _align_in_motion(lf: LooseFilter, layout, nav, P, fix: GnssFix, aligned):
         w_h2 = (geodesy.OMEGA_E * jnp.cos(state.llh[0])) ** 2
         xy = jnp.arange(layout.sl(name).start, layout.sl(name).start + 2)
         P_new = P_new.at[xy, xy].add(w_h2)
-    return (state, prev), jnp.where(do, P_new, P), aligned | do, do
+    return strapdown.InsNav(state, prev), jnp.where(do, P_new, P), aligned | do, do
 
 
 def _heading_index(layout: StateLayout) -> int:
@@ -430,7 +431,7 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
 
     (nav, P), means = jax.lax.scan(substep, (carry.nav, carry.P), chunks)
     f_mean_b, w_mean_b = jax.tree.map(lambda a: a.mean(0), means)  # epoch means (equal chunks)
-    state, last = nav
+    state, last = nav.state, nav.prev
     w_now_b = last.dtheta_b / lf.imu_dt_s  # rate at t_k - dt/2 for the lever-arm terms
     C = state.C_b_l
     lever = cfg.vehicle_lever_b
@@ -452,7 +453,7 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
     aligned, gnss_ok = carry.aligned, jnp.ones(3, bool)
     if cfg.align_in_motion:
         nav, P, aligned, now = _align_in_motion(lf, layout, nav, P, inp.gnss, aligned)
-        state = nav[0]
+        state = nav.state
         C = state.C_b_l
         # Before the alignment a moving INS runs in an arbitrary heading frame: horizontal GNSS
         # rows would be explained by tilt and accelerometer biases, so only the vertical ones

@@ -267,24 +267,23 @@ class InsSystem(eqx.Module):
     lever_b: jax.Array = eqx.field(default_factory=lambda: jnp.zeros(3))
 
     def propagate(self, nav, sensors: ins_errors.SensorErrors, samples, dt):
-        """``nav`` is (NavState, previous corrected sample); ``samples`` raw ImuIncrements [K]."""
-        state, prev = nav
+        """``nav`` an ``InsNav``; ``samples`` raw ImuIncrements [K]."""
         corrected = ins_errors.correct_imu(samples, sensors, dt)
-        state, _ = strapdown.mechanize(state, corrected, dt, prev)
+        state, _ = strapdown.mechanize(nav.state, corrected, dt, nav.prev)
         last = strapdown.ImuIncrements(corrected.dtheta_b[-1], corrected.dv_b[-1])
         span = dt * samples.dv_b.shape[0]
         mean = (corrected.dv_b.sum(0) / span, corrected.dtheta_b.sum(0) / span)
-        return (state, last), mean
+        return strapdown.InsNav(state, last), mean
 
     def dynamics(self, nav, mean_inputs, sensors):
-        state, _ = nav
+        state = nav.state
         f_b, w_ib_b = mean_inputs
         return ins_errors.error_dynamics(
             self.layout, state.llh, state.vel_enu, state.C_b_l, f_b, w_ib_b, self.model
         )
 
     def antenna(self, nav, mean_inputs, sensors, layout_full: StateLayout):
-        state, _ = nav
+        state = nav.state
         _, w_ib_b = mean_inputs
         C = state.C_b_l
         llh_ant = strapdown.antenna_llh(state.llh, C, self.lever_b)
@@ -303,13 +302,12 @@ class InsSystem(eqx.Module):
         )
 
     def feedback(self, nav, sensors, dx, layout_full: StateLayout):
-        state, prev = nav
-        state = ins_errors.feedback(state, dx, layout_full)
+        state = ins_errors.feedback(nav.state, dx, layout_full)
         sensors = ins_errors.feedback_sensors(sensors, dx, layout_full)
-        return (state, prev), sensors
+        return strapdown.InsNav(state, nav.prev), sensors
 
     def initial_std(self, nav, sig: NavSigmas):
-        state, _ = nav
+        state = nav.state
         std = ins_errors.sensor_initial_std(self.layout, self.model, sig.gyro_calibration_s)
         std = std.at[self.layout.sl("pos")].set(_pos_std_llh(state.llh, sig.pos_m))
         std = std.at[self.layout.sl("vel")].set(sig.vel_m_s)
@@ -324,7 +322,7 @@ class InsSystem(eqx.Module):
 
         Accelerometer biases stay zero: at rest they cannot be told from a tilt.
         """
-        state, _ = nav
+        state = nav.state
         w_mean = samples.dtheta_b.mean(0) / dt
         w_ie_b = state.C_b_l.T @ geodesy.earth_rate_enu(state.llh[0])
         return self.zero_sensors()._replace(gyro_bias_rad_s=w_mean - w_ie_b)
@@ -334,10 +332,10 @@ class InsSystem(eqx.Module):
         return (jnp.zeros(3), jnp.zeros(3))
 
     def llh(self, nav):
-        return nav[0].llh
+        return nav.state.llh
 
     def vel_enu(self, nav):
-        return nav[0].vel_enu
+        return nav.state.vel_enu
 
     def euler(self, nav):
-        return attitude.euler_from_quat(nav[0].q_b_l)
+        return attitude.euler_from_quat(nav.state.q_b_l)

@@ -240,7 +240,7 @@ def _nhc_update(tf: TightFilter, layout: StateLayout, nav, res: ekf.UpdateResult
     sample's (as in ``loose``); the IMU is taken to be at the vehicle's no-slip point."""
     if not layout.has("att"):
         raise ValueError("the tight NHC update needs a full-IMU system (attitude states)")
-    state, last = nav
+    state, last = nav.state, nav.prev
     w_now_b = last.dtheta_b / tf.imu_dt_s
     rows = constraints.nhc_rows(
         layout, state.llh, state.vel_enu, state.C_b_l, w_now_b, jnp.zeros(3), tf.nhc_sigma_m_s

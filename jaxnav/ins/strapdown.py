@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -60,6 +61,14 @@ class ImuIncrements(NamedTuple):
 
     dtheta_b: jax.Array  # [rad], body right-forward-up axes
     dv_b: jax.Array  # [m/s], body right-forward-up axes
+
+
+class InsNav(eqx.Module):
+    """The full INS's navigation state between epochs: the strapdown state and the last corrected
+    IMU sample (the next step's coning / sculling and trapezoidal terms read it)."""
+
+    state: NavState
+    prev: ImuIncrements
 
 
 def nav_state(llh, vel_enu, euler_rpa) -> NavState:

@@ -219,11 +219,11 @@ def initial_riss_state(geo: Geometry) -> riss.RissState:
 
 
 def initial_ins_state(geo: Geometry):
-    """(NavState, previous sample) at epoch 0 from the truth."""
+    """``InsNav`` (NavState, previous sample) at epoch 0 from the truth."""
     t = geo.truth_ep
     nav = strapdown.NavState(t.llh[0], t.vel_enu[0], t.q_b_l[0])
     prev = strapdown.ImuIncrements(geo.truth.dtheta_b[1], geo.truth.dv_b[1])
-    return nav, prev
+    return strapdown.InsNav(nav, prev)
 
 
 def iterate_realizations(
