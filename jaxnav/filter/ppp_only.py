@@ -33,7 +33,7 @@ import jax.numpy as jnp
 
 from jaxnav import geodesy
 from jaxnav.core.states import StateLayout
-from jaxnav.filter.systems import NavSigmas
+from jaxnav.filter.systems import AbstractNavSystem, NavSigmas
 from jaxnav.gnss.ppp import Receiver
 
 MODELS = ("static", "random_walk", "constant_velocity")
@@ -56,7 +56,7 @@ def dummy_samples(n_epochs: int, per_epoch: int = 1):
     return jnp.zeros((n_epochs, per_epoch))
 
 
-class GnssOnlySystem(eqx.Module):
+class GnssOnlySystem(AbstractNavSystem):
     """Receiver-only motion model for PPP (static, random-walk or constant-velocity kinematic)."""
 
     model: str = eqx.field(static=True, default="static")

@@ -1,7 +1,9 @@
 """Navigation systems the integration filters drive: the full-IMU INS and the RISS.
 
 A system knows its mechanization, its error model, where its GNSS antenna is, and how to feed
-estimated errors back. The filters (tight.py, loose.py) only talk to this interface:
+estimated errors back. The filters (tight.py, loose.py) only talk to this interface,
+``AbstractNavSystem`` (equinox's abstract / final pattern; the GNSS-only receiver of
+``ppp_only.py`` is the third implementation; docs/extending.md "Add a navigation system"):
 
 - ``layout``: the navigation + sensor error-state layout (a prefix of the filter's layout);
 - ``propagate(nav, sensors, samples, dt)`` -> (nav, mean corrected inputs over the epoch);
@@ -12,6 +14,8 @@ estimated errors back. The filters (tight.py, loose.py) only talk to this interf
 """
 
 from __future__ import annotations
+
+import abc
 
 import equinox as eqx
 import jax
@@ -48,7 +52,78 @@ def _place(std, layout: StateLayout, name, value):
     return std.at[layout.sl(name)].set(value) if layout.has(name) else std
 
 
-class RissSystem(eqx.Module):
+class AbstractNavSystem(eqx.Module):
+    """The navigation-system interface of the tight and loose filters (module docstring).
+
+    ``nav`` is the system's own typed navigation state (``riss.RissState``,
+    ``strapdown.InsNav``, ``ppp_only.GnssNav``), ``sensors`` its sensor-error estimates. A
+    concrete system that leaves an abstract method out is a TypeError when its class is
+    defined, not when a filter first calls it.
+    """
+
+    @property
+    @abc.abstractmethod
+    def layout(self) -> StateLayout:
+        """The navigation + sensor error-state layout (a prefix of the filter's layout)."""
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.__name__.startswith("Abstract"):
+            return
+        # ABCMeta sets __abstractmethods__ only after __init_subclass__ returns: look directly.
+        abstract = sorted(k for k in dir(cls) if getattr(getattr(cls, k, None),
+                                                          "__isabstractmethod__", False))
+        if abstract:
+            raise TypeError(f"navigation system {cls.__name__} does not implement "
+                            f"{', '.join(abstract)}")
+
+    @abc.abstractmethod
+    def propagate(self, nav, sensors, samples, dt):
+        """(nav at the epoch's end, mean corrected inputs) after the epoch's samples [K, ...]."""
+
+    @abc.abstractmethod
+    def dynamics(self, nav, mean_inputs, sensors):
+        """Continuous error dynamics (F, G, Qc) of ``layout``: d(dx)/dt = F dx + G w, E[w w^T] =
+        Qc delta(t)."""
+
+    @abc.abstractmethod
+    def antenna(self, nav, mean_inputs, sensors, layout_full: StateLayout) -> Receiver:
+        """The antenna's ECEF position / velocity and their Jacobians w.r.t. the full dx."""
+
+    @abc.abstractmethod
+    def feedback(self, nav, sensors, dx, layout_full: StateLayout):
+        """Closed loop: (nav, sensors) corrected by the estimated errors, x <- x_hat - dx_hat."""
+
+    @abc.abstractmethod
+    def initial_std(self, nav, sig: NavSigmas):
+        """[layout.size] initial standard deviations of the error states."""
+
+    @abc.abstractmethod
+    def zero_sensors(self):
+        """Sensor-error estimates of a system that has learnt nothing yet."""
+
+    @abc.abstractmethod
+    def idle_inputs(self, nav):
+        """Mean inputs before any propagation (for the antenna at the start)."""
+
+    @abc.abstractmethod
+    def llh(self, nav):
+        """[3] geodetic position (lat rad, lon rad, h m) of the navigation point."""
+
+    @abc.abstractmethod
+    def vel_enu(self, nav):
+        """[3] ENU velocity [m/s]."""
+
+    @abc.abstractmethod
+    def euler(self, nav):
+        """[3] (roll, pitch, azimuth) [rad]."""
+
+    def calibrate_static(self, nav, samples, dt):
+        """Sensor-error estimates from a standstill with known attitude (systems with sensors)."""
+        raise TypeError(f"{type(self).__name__} has no sensors to calibrate at a standstill")
+
+
+class RissSystem(AbstractNavSystem):
     """3D RISS (seeds 000/002) with its 16-state (S000) or 9-state (S002) error model.
 
     Beyond the seeds' models (whose position, velocity and azimuth rows have no direct process
@@ -259,7 +334,7 @@ class RissSystem(eqx.Module):
         return jnp.stack([nav.roll, nav.pitch, nav.azimuth])
 
 
-class InsSystem(eqx.Module):
+class InsSystem(AbstractNavSystem):
     """Full strapdown INS (ENU, quaternion) with the 15/21/27-state error model."""
 
     layout: StateLayout = eqx.field(static=True, default=INS15)

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 from jaxnav import geodesy
 from jaxnav.core.states import StateLayout
 from jaxnav.filter import constraints, ekf
-from jaxnav.filter.systems import NavSigmas
+from jaxnav.filter.systems import AbstractNavSystem, NavSigmas
 from jaxnav.gnss import corrections, models, ppp
 from jaxnav.gnss.ppp_data import EpochInput  # noqa: F401  (the filter's input, re-exported)
 
@@ -38,7 +38,7 @@ from jaxnav.gnss.ppp_data import EpochInput  # noqa: F401  (the filter's input, 
 class TightFilter(eqx.Module):
     """A navigation system coupled with a PPP configuration (both static in shape)."""
 
-    system: Any
+    system: AbstractNavSystem
     cfg: ppp.PppConfig
     slots: ppp.SlotInfo
     imu_dt_s: float
