@@ -37,10 +37,7 @@ import numpy as np
 from common import comparison_table, fmt, markdown_table, parse_args, write_report
 
 import jaxnav  # noqa: F401  (float64)
-from jaxnav import geodesy
-from jaxnav.filter import ppp_only, tight
-from jaxnav.gnss import modes as ppp_modes
-from jaxnav.gnss import ppp
+from jaxnav.filter import tight
 from jaxnav.study import config, metrics, report
 from jaxnav.study import factory as factory_mod
 from jaxnav.study.sweep import Problem, run_sweep
@@ -48,61 +45,12 @@ from jaxnav.study.sweep import Problem, run_sweep
 NAME = "seed001_ic_ppp_ins"
 CONV_WINDOWS = ((0, 60), (60, 300), (300, 600))  # s from the start of a run
 S001_IONO_RW = 0.03  # m/sqrt(h), S001 eqs 4-5 (jaxnav's default is 1 m/sqrt(h), gnss/ppp.py)
-PPP_ALONE = "ppp_alone"
+PPP_ALONE = factory_mod.PPP_ALONE
 
 
 # ----------------------------------------------------------------------------------------------
 # PPP alone as a sweep system (also imported by seed002_df_ppp_riss.py)
 # ----------------------------------------------------------------------------------------------
-class PppAloneFactory(factory_mod.SimFactory):
-    """SimFactory plus the system ``ppp_alone``: the tight filter's PPP rows and resets on a
-    GNSS-only constant-velocity receiver (``ppp_only.GnssOnlySystem``), scored against the true
-    ANTENNA track (the receiver estimates the antenna; the INS systems are scored at the IMU).
-    The GNSS observations are the same realisation the INS systems see (same seed)."""
-
-    systems = factory_mod.SYSTEMS + (PPP_ALONE,)
-    # Constant velocity (Doppler-observed ENU velocity, white acceleration 1 m/s^2/sqrt(Hz)):
-    # with the random-walk model (S002 5.2.3, position held between epochs) a 25-50 m/s
-    # vehicle moves more than the 20 m code pre-fit test between epochs and most satellites
-    # are rejected (measured: 2 of 7 used, the error grows with the distance flown).
-    gnss_model = "constant_velocity"
-
-    def fingerprint(self) -> str:
-        return super().fingerprint() + f"|{PPP_ALONE}:{self.gnss_model}"
-
-    def build(self, study_cfg, mode: str, system_name: str, seed: int) -> Problem:
-        if system_name != PPP_ALONE:
-            return super().build(study_cfg, mode, system_name, seed)
-        geo, cfg = self.geo, self.cfg
-        # The GNSS noise depends only on the seed; reuse a simulator already compiled for this
-        # frequency plan (any IMU grade) instead of compiling another one.
-        sf = mode == "sf_code"
-        done = [g for (f, g) in self.__dict__.get("_realize_fns", {}) if f == sf]
-        grade = done[0] if done else self.ins_grade
-        real = factory_mod._realize(self, int(seed), sf, grade)
-        pcfg = ppp.PppConfig(
-            mode=mode,
-            systems=cfg.systems,
-            n_slots=int(geo.slots.system.shape[0]),
-            estimate_zwd=ppp_modes.get(mode).uses_phase,
-            bssd=self.bssd,
-            iono_model_residual_fraction=self.iono_model_fraction,
-        )
-        dt = cfg.epoch_interval_s
-        tf = tight.TightFilter(
-            ppp_only.GnssOnlySystem(model=self.gnss_model), pcfg, geo.slots, dt, dt
-        )
-        T = int(real.ins_inputs.keep.shape[0])
-        inputs = real.ins_inputs._replace(samples=ppp_only.dummy_samples(T))
-        llh_ant = jax.vmap(geodesy.ecef_to_llh)(geo.ant_pos_ecef)
-        vel_ant = jax.vmap(lambda v, p: geodesy.C_l_e(p[0], p[1]).T @ v)(geo.ant_vel_ecef, llh_ant)
-        nav0 = ppp_only.GnssNav(llh_ant[0], vel_ant[0])
-        carry0 = tight.initial_carry(tf, nav0, real.obs0)
-        truth = metrics.track(llh_ant[1:], vel_ant[1:], geo.truth_ep.euler[1:])
-        el, az = self._sky
-        return Problem(tf, carry0, inputs, truth, el, inputs.obs.available, az)
-
-
 _RUN = eqx.filter_jit(tight.run)
 
 
@@ -156,7 +104,8 @@ def study_dict(name, scenario, modes, systems, durations, kept, quick, *, conv_s
         "metrics": {"reconv_threshold_m": 0.2, "reconv_factor": 2.0, "pre_s": 10},
         "scenario": scenario,
     }
-    return config.from_dict(d, modes=PppAloneFactory.modes, systems=PppAloneFactory.systems)
+    fac = factory_mod.SimFactory
+    return config.from_dict(d, modes=fac.modes, systems=fac.systems)
 
 
 def label(mode, system):
@@ -298,7 +247,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         scfg = study_dict(f"{NAME}-{prof}", scn, modes, systems, durations, kept, quick,
                           **sweep_kw)
-        fac = factories[prof] = PppAloneFactory(scfg.scenario_dict)
+        fac = factories[prof] = factory_mod.SimFactory(scfg.scenario_dict)
         for m, s in combos:
             acc = []
             for seed in range(n_real):

@@ -5,7 +5,7 @@
 Part A (S002 ch. 5, SEED_SPEC 3.4): the tightly coupled DF-PPP/RISS of S002 (9 navigation /
 sensor states + GNSS: ``riss9``; ``float_ppp`` = IF code + phase with float ambiguities;
 GPS + GLONASS) against DF-PPP alone (``ppp_alone``: the same PPP rows on a GNSS-only receiver,
-added to the factory by ``seed001_ic_ppp_ins.PppAloneFactory``):
+a system of the factory, ``study/factory.py``):
 
 - a sweep of short complete outages (2, 3, 4 s: overpasses) and 10 s outages at random
   placements on a highway drive, realisations x placements, with the lane-level fractions
@@ -42,7 +42,6 @@ from common import (
 )
 from seed001_ic_ppp_ins import (
     PPP_ALONE,
-    PppAloneFactory,
     errors,
     keep_highest,
     label,
@@ -53,6 +52,7 @@ from seed001_ic_ppp_ins import (
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav.study import report
+from jaxnav.study.factory import SimFactory
 from jaxnav.study.sweep import run_sweep, tight_ops
 
 NAME = "seed002_df_ppp_riss"
@@ -154,7 +154,7 @@ def main(argv=None) -> int:
     # ---------------- A1: sweep of overpass / 10 s outages -----------------------------------
     t0 = time.perf_counter()
     scfg = study_dict(f"{NAME}-highway", hw, modes, systems, durations, kept, quick, **sweep_kw)
-    fac = PppAloneFactory(scfg.scenario_dict)
+    fac = SimFactory(scfg.scenario_dict)
     res = run_sweep(scfg, fac, out / "sweep-highway", resume=True, progress=not quick)
     ds = res.dataset
     timings["sweep highway"] = time.perf_counter() - t0
@@ -261,7 +261,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         scfg1 = study_dict(f"{NAME}-slow", slow, modes, systems, [10], [0], quick,
                            conv_s=600, spacing_s=60, recovery_s=60, realizations=1)
-        fac1 = PppAloneFactory(scfg1.scenario_dict)
+        fac1 = SimFactory(scfg1.scenario_dict)
         wins = [(1200, 10, 0), (1710, 10, 0)]  # 20 min and 28.5 min (S002)
         rows, cmp_rows, curves = [], [], {}
         reac = {}
@@ -335,7 +335,7 @@ DISCUSSION_PATH = Path(__file__).resolve().parent / "results" / NAME / "discussi
 
 def lc_part(scn, quick, excl_ch5, out, figs) -> str:
     """Tables 4.4-4.6: SF-PPP (sf_code) -> LC 15-state INS (lsm6dsl) with NHC and ZUPT."""
-    fac = PppAloneFactory(scn)
+    fac = SimFactory(scn)
     if LC_SYSTEM not in fac.systems:
         return ("Not run: waits for the LC cascade (`jaxnav/filter/cascade.py` and the "
                 f"factory system `{LC_SYSTEM}` are not in this tree).")

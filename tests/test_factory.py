@@ -102,3 +102,29 @@ def test_standstill_calibration_sets_the_gyro_bias_prior_it_earns():
     carry_lc, _ = f.start(lc, "lc_ins15", fac._realize(f, 0, False, f.ins_grade))
     sd_lc = np.sqrt(np.diag(np.asarray(carry_lc.lc.P))[INS15.sl("gyro_bias")])
     np.testing.assert_allclose(sd_lc, expect, rtol=1e-12)
+
+
+def test_ppp_alone_is_a_gnss_only_receiver_scored_at_the_antenna():
+    """``ppp_alone`` (S002 ch. 5's "DF-PPP alone"): the tight filter's PPP rows on a GNSS-only
+    constant-velocity receiver that starts at, and is scored against, the true antenna (the
+    other systems are scored at the IMU, 1-2 m away by the lever arm)."""
+    from jaxnav import geodesy
+    from jaxnav.filter import ppp_only
+    from jaxnav.study import config
+
+    f = SimFactory({"duration_s": 240.0})
+    assert fac.PPP_ALONE in f.systems
+    cfg = config.from_dict(
+        {"study": {"name": "x", "modes": ["df_code"], "systems": [fac.PPP_ALONE],
+                   "durations_s": [10], "satellites_kept": [0]},
+         "placement": {"kind": "grid", "convergence_s": 60, "spacing_s": 60}},
+        modes=f.modes, systems=f.systems,
+    )
+    prob = f.build(cfg, "df_code", fac.PPP_ALONE, 0)
+    assert isinstance(prob.tf.system, ppp_only.GnssOnlySystem)
+    assert prob.tf.system.model == fac.PPP_ALONE_MODEL
+    llh_ant = np.asarray(jax.vmap(geodesy.ecef_to_llh)(f.geo.ant_pos_ecef))
+    np.testing.assert_allclose(np.asarray(prob.truth.llh), llh_ant[1:], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(prob.carry0.nav.llh), llh_ant[0], rtol=0, atol=1e-12)
+    imu_h = np.asarray(f.geo.truth_ep.llh[1:, 2])
+    assert np.abs(llh_ant[1:, 2] - imu_h).max() > 0.5  # the antenna really is elsewhere
