@@ -116,6 +116,8 @@ class SimFactory:
                     f"[scenario] {k} = {v!r}: expected a {_SCENARIO_KEYS[k].__name__}"
                 )
         self.table = {k: _SCENARIO_KEYS[k](v) for k, v in table.items()}
+        # compiled simulators by (single frequency, IMU grade): one per factory (``_realize``)
+        self._realize_fns: dict[tuple[bool, str], object] = {}
         t = self.table
         names = t.get("constellations", ["gps"])
         bad = [c for c in names if c not in _CONSTELLATIONS]
@@ -281,7 +283,7 @@ class SimFactory:
         sf = ppp_modes.get(mode).single_frequency
         # The GNSS noise depends only on the seed: reuse a simulator already compiled for this
         # frequency plan (any IMU grade) instead of compiling another one.
-        done = [g for (f, g) in self.__dict__.get("_realize_fns", {}) if f == sf]
+        done = [g for (f, g) in self._realize_fns if f == sf]
         real = _realize(self, int(seed), sf, done[0] if done else self.ins_grade)
         T = int(real.ins_inputs.keep.shape[0])
         inputs = real.ins_inputs._replace(samples=ppp_only.dummy_samples(T))
@@ -296,7 +298,7 @@ class SimFactory:
 def _realize(factory: SimFactory, seed: int, single_frequency: bool, imu_grade: str):
     """One noise realisation with the IMU of ``imu_grade``. The simulator is compiled once per
     factory, frequency plan and grade (a fresh ``jit`` per seed recompiled it: ~4 s each)."""
-    cache = factory.__dict__.setdefault("_realize_fns", {})
+    cache = factory._realize_fns
     fn = cache.get((single_frequency, imu_grade))
     if fn is None:
         geo = factory.geo
