@@ -3,7 +3,7 @@ number of satellite slots and state size, for full-IMU and RISS systems.
 
 Unit of work: one scenario = the tight filter (``jaxnav.filter.tight.run``) run from a checkpoint
 carry over an outage window (outage epochs + recovery epochs) with a keep mask, i.e. what
-``jaxnav.study.sweep._one_scenario`` does without the engine's gathers and metrics. The harness
+``jaxnav.study.engine._one_scenario`` does without the engine's gathers and metrics. The harness
 times ``jax.jit(jax.vmap(lambda carry, inputs: tight.run(tf, carry, inputs)))`` on B copies of one
 window (the checkpoint carry is the filter state after ``CKPT_S`` seconds of the drive; the B
 copies differ in their keep masks: scenario b keeps ``b % 4`` satellites during the outage).

@@ -68,7 +68,7 @@ from jaxnav.geodesy import C_LIGHT
 from jaxnav.gnss import corrections, ephemeris, models, signals, tides, windup
 from jaxnav.gnss.ppp_data import EpochInput, GnssObs, SlotInfo
 from jaxnav.gnss.slips import detect_slips
-from jaxnav.gnss.spp import SppResult, fill_positions, spp  # noqa: F401  (SppResult re-exported)
+from jaxnav.gnss.spp import fill_positions, spp
 from jaxnav.io.products import (
     ClockInterp,
     ClockTable,

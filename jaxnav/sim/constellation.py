@@ -43,8 +43,6 @@ from jaxnav.gnss.ephemeris import (  # noqa: F401  (re-exported: one API for bot
     GM_GPS,
     GPS_A_M,
     BroadcastEphemeris,
-    GlonassRecords,
-    KeplerRecords,
     SatState,
     take_satellites,
 )

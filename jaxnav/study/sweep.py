@@ -72,13 +72,12 @@ import jaxnav
 from jaxnav.core.ops import FilterOps
 from jaxnav.study import metrics as mt
 from jaxnav.study.config import ALL, StudyConfig, validate  # noqa: F401  (ALL re-exported)
-from jaxnav.study.engine import (  # noqa: F401  (re-exported)
+from jaxnav.study.engine import (
     _Batch,
     _compiled,
     _Context,
     _make_evaluate,
     _make_full_run,
-    _one_scenario,
     _Static,
 )
 from jaxnav.study.plan import (  # noqa: F401  (re-exported)
