@@ -36,7 +36,7 @@ import jaxnav  # noqa: F401
 from jaxnav import geodesy
 from jaxnav.core.states import StateLayout
 from jaxnav.filter import ppp_only
-from jaxnav.gnss import corrections, models, ppp, signals
+from jaxnav.gnss import corrections, models, ppp, series, signals
 from jaxnav.gnss.slips import detect_slips
 from jaxnav.gnss.spp import spp
 from jaxnav.io import prepare as prep_mod
@@ -194,7 +194,7 @@ def test_ionex_slant_delay_of_a_uniform_map():
     el = jnp.array([[math.pi / 2, math.radians(10.0)]] * 2)
     az = jnp.array([[0.0, math.radians(135.0)]] * 2)
     f1 = np.array([signals.GPS_L1_HZ, signals.GPS_L1_HZ])
-    got = np.asarray(prep_mod._ionex_slots(maps, llh, el, az, t0 + np.array([600.0, 5000.0]), f1))
+    got = np.asarray(series.ionex_slots(maps, llh, el, az, t0 + np.array([600.0, 5000.0]), f1))
     zen = 40.3 * 20e16 / signals.GPS_L1_HZ**2
     assert zen == pytest.approx(3.247, abs=1e-3)
     m10 = 1.0 / math.sqrt(1.0 - (6371.0 * math.cos(math.radians(10.0)) / 6821.0) ** 2)

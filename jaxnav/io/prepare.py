@@ -5,22 +5,14 @@
 IONEX maps) into one ``ppp.GnssObs`` per epoch (stacked along a leading time axis), the
 ``ppp.SlotInfo`` of the satellites and the day of year; ``epoch_inputs`` adds the navigation
 system's per-epoch samples and the availability mask to make the ``tight.EpochInput`` pytree.
-The heavy parts are pure JAX over [T, S] arrays (vmap over epochs and slots, lax.scan for the
-sequential wind-up and slip detectors).
+This module is the stage that runs them in order; the computations are pure JAX over [T, S]
+arrays in ``gnss/`` (satellites, series, spp, slips).
 
 What each slot gets, per epoch (S002 eqs 2.25-2.26 with the corrections of SEED_SPEC 2.10):
 
-- Satellite position / velocity at *transmission*: t_sv = t_rx - P/c is the satellite-clock
-  reading at transmission, t_tx = t_sv - dt^s(t_sv), then the orbit at t_tx and dt^s again at
-  t_tx (the receiver clock never enters: P/c already contains it). Precise orbits: SP3 Lagrange
-  interpolation (io.products, 10 points, velocity by differentiation); broadcast: IS-GPS-200 /
-  GLONASS ICD evaluation (gnss.ephemeris). Earth rotation during the travel time (Sagnac) is
-  applied by the filter's geometry (gnss.models), which expects exactly this transmit-time
-  position in the transmit-time ECEF frame.
-- Satellite clock c dt^s: RINEX clock file (linear interpolation) or the SP3 clock column, or
-  the broadcast polynomial; plus the periodic relativistic term -2 r.v / c^2 (IS-GPS-200; the
-  GLONASS broadcast clock already contains it). The clock rate (Doppler model) is the time
-  derivative of the same interpolant.
+- Satellite position / velocity and clock at *transmission* (``gnss/satellites.py``: SP3 +
+  RINEX clock through ``gnss/interp.py``, or the broadcast ephemeris), with the relativistic
+  clock term; Earth rotation during the travel time is applied by the filter's geometry.
 - Satellite code biases [S, 2] (subtracted from the code by the filter): zero for dual-frequency
   P1/P2 users (precise and broadcast clocks refer to the P1/P2 or E1/E5a ionosphere-free code,
   SEED_SPEC 2.8); for single-frequency users the broadcast group delay: GPS
@@ -55,33 +47,19 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from functools import partial
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav import geodesy
 from jaxnav.core import gpstime
 from jaxnav.geodesy import C_LIGHT
-from jaxnav.gnss import corrections, ephemeris, models, signals, tides, windup
+from jaxnav.gnss import ephemeris, models, satellites, series, signals
+from jaxnav.gnss.interp import clock_table, orbit_table
 from jaxnav.gnss.ppp_data import EpochInput, GnssObs, SlotInfo
 from jaxnav.gnss.slips import detect_slips
 from jaxnav.gnss.spp import fill_positions, spp
-from jaxnav.io.products import (
-    ClockInterp,
-    ClockTable,
-    GridTable,
-    IonexMaps,
-    Sp3Orbit,
-    clock_bias,
-    clock_table,
-    ionex_table,
-    ionex_vtec,
-    orbit_table,
-    sp3_position_velocity,
-)
+from jaxnav.io.products import ClockTable, IonexMaps, Sp3Orbit
 from jaxnav.io.rinex import RinexObs
 
 LETTER_TO_SYS = {"G": signals.SYS_GPS, "R": signals.SYS_GLO, "E": signals.SYS_GAL}
@@ -274,103 +252,6 @@ def _slot_arrays(obs: RinexObs, products: Products, opt: PrepareOptions) -> _Slo
 # ------------------------------------------------------------------------------------------------
 
 
-def _sub_grid(table: GridTable, cols):
-    return GridTable(table.t0_gps_s, table.dt_s, table.values[:, cols], table.present[:, cols])
-
-
-def _sp3_slots(table: GridTable, t, n_points, one_sided):
-    """Position, velocity, valid of slot s at times t[:, s] ([T, S]); table columns = slots."""
-
-    def one_slot(values_s, present_s, t_s):
-        tab = GridTable(table.t0_gps_s, table.dt_s, values_s[:, None, :], present_s[:, None])
-        p, v, ok = jax.vmap(lambda tt: sp3_position_velocity(tab, tt, n_points, one_sided))(t_s)
-        return p[:, 0], v[:, 0], ok[:, 0]
-
-    return jax.vmap(one_slot, in_axes=(1, 1, 1), out_axes=1)(table.values, table.present, t)
-
-
-def _clock_slots(table: ClockInterp, t):
-    """Clock [s], its rate [s/s] and valid of slot s at times t[:, s] ([T, S])."""
-
-    def one_slot(values_s, prev_s, next_s, t_s):
-        tab = ClockInterp(
-            table.t0_gps_s,
-            table.dt_s,
-            values_s[:, None],
-            prev_s[:, None],
-            next_s[:, None],
-            table.max_gap_s,
-        )
-
-        def f(tt):
-            c, ok = clock_bias(tab, tt)
-            return c[0], ok[0]
-
-        def one(tt):
-            (c, ok), (rate, _) = jax.jvp(f, (tt,), (jnp.ones_like(tt),))
-            return c, rate, ok
-
-        return jax.vmap(one)(t_s)
-
-    return jax.vmap(one_slot, in_axes=(1, 1, 1, 1), out_axes=1)(
-        table.values, table.prev_idx, table.next_idx, t
-    )
-
-
-def _sub_clock(table: ClockInterp, cols):
-    return ClockInterp(
-        table.t0_gps_s,
-        table.dt_s,
-        table.values[:, cols],
-        table.prev_idx[:, cols],
-        table.next_idx[:, cols],
-        table.max_gap_s,
-    )
-
-
-def _relativity_m(pos, vel):
-    return C_LIGHT * corrections.relativistic_clock_s(pos, vel)
-
-
-class _SatProducts(NamedTuple):
-    pos: jnp.ndarray  # [T, S, 3]
-    vel: jnp.ndarray
-    clock_m: jnp.ndarray  # [T, S] c (dt^s + dt_rel)
-    clock_rate_m_s: jnp.ndarray
-    valid: jnp.ndarray  # [T, S]
-
-
-@partial(jax.jit, static_argnames=("n_points", "one_sided"))
-def _precise_states(sp3_tab, clk_tab, t_rx, travel_s, n_points, one_sided) -> _SatProducts:
-    """Precise orbit + clock at t_tx = t_rx - P/c - dt^s (two clock evaluations)."""
-    t_sv = t_rx[:, None] - travel_s
-    dts0, _, _ = _clock_slots(clk_tab, t_sv)
-    t_tx = t_sv - dts0
-    pos, vel, ok_orb = _sp3_slots(sp3_tab, t_tx, n_points, one_sided)
-    dts, rate, ok_clk = _clock_slots(clk_tab, t_tx)
-    rel = _relativity_m(pos, vel)
-    # d(rel)/dt = -2 (v.v + r.a)/c^2 is < 1e-11 s/s x c = 3 mm/s: kept out of the clock rate.
-    return _SatProducts(pos, vel, C_LIGHT * dts + rel, C_LIGHT * rate, ok_orb & ok_clk)
-
-
-@jax.jit
-def _broadcast_states(eph_sub, t_rx, travel_s) -> _SatProducts:
-    """Broadcast orbit + clock (one satellite of ``eph_sub`` per slot) at transmission."""
-
-    def one_epoch(t, tau):
-        t_src = t - tau - eph_sub.t_ref_gps_s
-        st0 = ephemeris.satellite_state(eph_sub, t_src)
-        st = ephemeris.satellite_state(eph_sub, t_src - st0.clock_s)
-        return st
-
-    st = jax.vmap(one_epoch)(jnp.asarray(t_rx), travel_s)
-    is_glo = (eph_sub.system == signals.SYS_GLO)[None, :]
-    rel = jnp.where(is_glo, 0.0, _relativity_m(st.pos_ecef, st.vel_ecef))
-    return _SatProducts(
-        st.pos_ecef, st.vel_ecef, C_LIGHT * st.clock_s + rel, C_LIGHT * st.clock_rate_s_s, st.ok
-    )
-
-
 # ------------------------------------------------------------------------------------------------
 # Main entry
 # ------------------------------------------------------------------------------------------------
@@ -442,7 +323,7 @@ def prepare_gnss(
     if products.sp3 is not None:
         sp3_sv = products.sp3.sv.tolist()
         cols = np.array([sp3_sv.index(s) for s in arr.sv])
-        sp3_tab = _sub_grid(orbit_table(products.sp3), cols)
+        sp3_tab = satellites.sub_grid(orbit_table(products.sp3), cols)
         if products.clk is not None:
             clk_sv = products.clk.sv.tolist()
             have_clk = np.array([s in clk_sv for s in arr.sv])
@@ -453,7 +334,7 @@ def prepare_gnss(
                 products.clk.interval_s,
                 opt.clock_max_gap_s,
             )
-            ctab = _sub_clock(ctab, ccols)
+            ctab = satellites.sub_clock(ctab, ccols)
         else:
             warnings.warn(
                 "no clock file: using the SP3 clock column (interpolated linearly over the SP3 "
@@ -467,7 +348,7 @@ def prepare_gnss(
                 products.sp3.interval_s,
                 opt.clock_max_gap_s,
             )
-        sat = _precise_states(
+        sat = satellites.precise_states(
             sp3_tab, ctab, jnp.asarray(t_rx), travel, opt.sp3_points, opt.sp3_one_sided
         )
         sat = sat._replace(valid=sat.valid & jnp.asarray(have_clk)[None, :])
@@ -481,7 +362,7 @@ def prepare_gnss(
             )
             idx.append(int(sel[0]))
         eph_sub = ephemeris.take_satellites(nav, np.array(idx))
-        sat = _broadcast_states(eph_sub, t_rx, travel)
+        sat = satellites.broadcast_states(eph_sub, t_rx, travel)
 
     # --- model ionosphere inputs (needs geometry: computed after SPP) ------------------------
     doy = np.array([gpstime.day_of_year(t) for t in t_rx])
@@ -544,24 +425,26 @@ def prepare_gnss(
         approx = np.broadcast_to(np.median(approx[spp_ok], axis=0), approx.shape).copy()
 
     # --- geometry at the approximate position --------------------------------------------------
-    los, el, az, llh, sat_rot = _geometry_batch(jnp.asarray(approx), sat.pos, sat.clock_m)
+    los, el, az, llh, sat_rot = series.geometry_series(jnp.asarray(approx), sat.pos, sat.clock_m)
 
     # --- ionosphere model ---------------------------------------------------------------------
     iono_l1 = _iono_model(opt, products, approx, sat, t_rx, f1)
 
     # --- wind-up and tides ----------------------------------------------------------------------
     if opt.apply_windup:
-        phi_w = np.asarray(
-            _windup_batch(sat_rot, jnp.asarray(approx), llh, jnp.asarray(t_rx), opt.leap_seconds)
-        )
+        phi_w = np.asarray(series.windup_series(
+            sat_rot, jnp.asarray(approx), llh, jnp.asarray(t_rx), opt.leap_seconds
+        ))
     else:
         phi_w = np.zeros((T, S))
     delta = _antenna_delta(obs, opt)  # (H, E, N)
     arp_enu = np.array([delta[1], delta[2], delta[0]])
     disp = np.zeros((T, 3))
     if opt.apply_tides:
-        disp = np.asarray(_tide_batch(jnp.asarray(approx), jnp.asarray(t_rx), opt.leap_seconds))
-    C = np.asarray(_enu_axes_batch(llh))  # [T, 3, 3]
+        disp = np.asarray(
+            series.tide_series(jnp.asarray(approx), jnp.asarray(t_rx), opt.leap_seconds)
+        )
+    C = np.asarray(series.enu_axes_series(llh))  # [T, 3, 3]
     disp_total = disp + np.einsum("tij,j->ti", C, arp_enu)
     los_corr = np.einsum("tsi,ti->ts", np.asarray(los), disp_total)  # u . d
 
@@ -655,84 +538,10 @@ def _iono_model(opt: PrepareOptions, products: Products, rx_pos, sat, t_rx, f1):
         if products.nav is None:
             warnings.warn("no navigation file: no Klobuchar ionosphere model", stacklevel=3)
             return np.zeros((T, S))
-        return np.asarray(_klobuchar_slots(products.nav, rx_pos, sat.pos, t_rx, f1))
+        return np.asarray(series.klobuchar_slots(products.nav, rx_pos, sat.pos, t_rx, f1))
     if opt.iono == "ionex":
-        _, el, az, llh, _ = _geometry_batch(jnp.asarray(rx_pos), sat.pos, sat.clock_m)
-        return np.asarray(_ionex_slots(products.ionex, llh, el, az, t_rx, f1))
+        _, el, az, llh, _ = series.geometry_series(jnp.asarray(rx_pos), sat.pos, sat.clock_m)
+        return np.asarray(series.ionex_slots(products.ionex, llh, el, az, t_rx, f1))
     return np.zeros((T, S))
 
 
-def _klobuchar_slots(nav, rx_pos, sat_pos, t_rx, f1):
-    """Klobuchar L1 slant delay [m] scaled to each slot's f1: (f_L1 / f1)^2 c T_iono."""
-    d = _klobuchar_batch(
-        jnp.asarray(rx_pos), sat_pos, jnp.asarray(t_rx), nav.iono_alpha, nav.iono_beta
-    )
-    return d * jnp.asarray((signals.GPS_L1_HZ / f1) ** 2)[None, :]
-
-
-@jax.jit
-def _klobuchar_batch(rx_pos, sat_pos, t_rx, alpha, beta):
-    def one(rx, sp, t):
-        llh = geodesy.ecef_to_llh(rx)
-        el, az = corrections.elevation_azimuth(rx, sp, llh)
-        sow = gpstime.gps_seconds_of_week(t)
-        return C_LIGHT * corrections.klobuchar_delay_s(llh[0], llh[1], az, el, sow, alpha, beta)
-
-    return jax.vmap(one)(rx_pos, sat_pos, t_rx)
-
-
-def _ionex_slots(maps: IonexMaps, llh, el, az, t_rx, f1):
-    """IONEX slant delay on f1 [m]: M(E) 40.3 VTEC / f1^2 at the thin-shell pierce point."""
-    tec = _ionex_batch(
-        ionex_table(maps),
-        llh,
-        el,
-        az,
-        jnp.asarray(t_rx),
-        maps.height_km * 1e3,
-        maps.base_radius_km * 1e3,
-    )
-    return corrections.IONO_K * tec / jnp.asarray(f1)[None, :] ** 2
-
-
-@jax.jit
-def _ionex_batch(table, llh, el, az, t_rx, h, r):
-    def one(l, e, a, t):
-        lat_p, lon_p = corrections.ionosphere_pierce_point(l[0], l[1], a, e, h, r)
-        vtec, ok = jax.vmap(lambda la, lo: ionex_vtec(table, t, la, lo))(lat_p, lon_p)
-        m = corrections.thin_shell_mapping(e, h, r)
-        return jnp.where(ok, m * vtec * corrections.TECU, 0.0)
-
-    return jax.vmap(one)(llh, el, az, t_rx)
-
-
-@jax.jit
-def _geometry_batch(rx_pos, sat_pos, sat_clock_m):
-    """Per epoch: LOS [S, 3], elevation, azimuth [S], receiver llh [3], rotated satellites."""
-
-    def one(rx, pos, clk):
-        se = models.SatEpoch(pos, jnp.zeros_like(pos), clk, jnp.zeros_like(clk))
-        geo = models.geometry(rx, jnp.zeros(3), se)
-        llh = geodesy.ecef_to_llh(rx)
-        el, az = models.elevation_azimuth(geo.los_ecef, geodesy.C_l_e(llh[0], llh[1]).T)
-        return geo.los_ecef, el, az, llh, geo.sat_pos_ecef
-
-    return jax.vmap(one)(rx_pos, sat_pos, sat_clock_m)
-
-
-@jax.jit
-def _windup_batch(sat_pos, rx_pos, llh, t_rx, leap_seconds):
-    """Continuous wind-up [rad] per epoch and slot (nominal yaw steering, north-aligned antenna)."""
-    sun, _ = tides.sun_moon_ecef(t_rx, leap_seconds)
-    frac = jax.vmap(windup.windup_rad)(sat_pos, rx_pos, sun, llh)
-    return windup.windup_series_rad(frac)
-
-
-@jax.jit
-def _tide_batch(rx_pos, t_rx, leap_seconds):
-    return jax.vmap(lambda p, t: tides.solid_tide_ecef(p, t, leap_seconds))(rx_pos, t_rx)
-
-
-@jax.jit
-def _enu_axes_batch(llh):
-    return jax.vmap(lambda l: geodesy.C_l_e(l[0], l[1]))(llh)
