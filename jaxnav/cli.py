@@ -28,11 +28,9 @@ DEMO_STUDY = {
 }
 
 
-def _run_study(cfg, out: Path, resume: bool, overwrite: bool) -> int:
+def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool) -> int:
     from jaxnav.study import report, sweep
-    from jaxnav.study.factory import SimFactory
 
-    factory = SimFactory(dict(cfg.scenario))
     result = sweep.run_sweep(cfg, factory, out, resume=resume, overwrite=overwrite)
     paths = report.write_report(result.dataset, out, overwrite=True)
     print(report.markdown_by_satellites(report.table_by_satellites(result.dataset)))
@@ -52,7 +50,8 @@ def _demo(args) -> int:
     from jaxnav.study.factory import SimFactory
 
     cfg = config.from_dict(DEMO_STUDY, modes=SimFactory.modes, systems=SimFactory.systems)
-    return _run_study(cfg, Path(args.out), args.resume, args.overwrite)
+    return _run_study(cfg, SimFactory(cfg.scenario_dict), Path(args.out), args.resume,
+                      args.overwrite)
 
 
 def _sweep(args) -> int:
@@ -61,10 +60,14 @@ def _sweep(args) -> int:
 
     try:
         cfg = config.load(args.config, modes=SimFactory.modes, systems=SimFactory.systems)
+        try:  # the [scenario] table, checked by the factory's schema before any work
+            factory = SimFactory(cfg.scenario_dict)
+        except config.ConfigError as e:
+            raise config.ConfigError(f"{args.config}: {e}") from None
     except config.ConfigError as e:
         print(f"jaxnav sweep: invalid study: {e}", file=sys.stderr)
         return 2
-    return _run_study(cfg, Path(args.out), args.resume, args.overwrite)
+    return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite)
 
 
 def _first_line(obj) -> str:

@@ -29,19 +29,28 @@ TINY = textwrap.dedent(
 
     [scenario]
     duration_s = 240
+    constellations = ["gps"]  # a list in [scenario] (it once reached the factory still frozen)
     """
 )
 
 
-def test_invalid_config_is_rejected_before_any_work(tmp_path, capsys):
+@pytest.mark.parametrize("old, new, words", [
+    ('modes = ["sf_ppp"]', 'modes = ["df_cod"]', ["study.modes[0] = 'df_cod'", "sf_code"]),
+    # the [scenario] table is the factory's: checked by its schema, also before any work
+    ('constellations = ["gps"]', 'constellations = ["gps", "beidu"]',
+     ["scenario.constellations[1] = 'beidu'", "'galileo'"]),
+])
+def test_invalid_config_is_rejected_before_any_work(tmp_path, capsys, old, new, words):
     bad = tmp_path / "bad.toml"
-    text = TINY.replace('modes = ["sf_ppp"]', 'modes = ["df_cod"]')
+    text = TINY.replace(old, new)
     assert text != TINY  # the typo is really in the file (a no-op replace once ran a sweep)
     bad.write_text(text)
     out = tmp_path / "out"
     assert cli.main(["sweep", str(bad), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "study.modes" in err and "df_cod" in err and "sf_code" in err
+    assert err.count("\n") == 1 and str(bad) in err, err  # one line naming the file
+    for w in words:
+        assert w in err, err
     assert not out.exists()
 
 

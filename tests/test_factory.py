@@ -17,13 +17,14 @@ from jaxnav.study.factory import SimFactory
 @pytest.mark.parametrize(
     "table, words",
     [
-        ({"colour": "red"}, ["unknown keys", "colour"]),
+        ({"colour": "red"}, ["unknown key scenario.colour", "allowed keys"]),
         ({"constellations": ["beidou"]}, ["constellations", "beidou"]),
         ({"constellations": ["galileo"]}, ["constellations", "gps"]),
-        ({"slots": [12, 14]}, ["slots", "three positive integers"]),
+        ({"constellations": ["gps", "gps"]}, ["scenario.constellations[1]", "distinct"]),
+        ({"slots": [12, 14]}, ["scenario.slots = [12, 14]", "a list of 3"]),
         ({"drive_style": "rally"}, ["drive_style", "rally", "airborne"]),
-        ({"duration_s": "long"}, ["duration_s", "long", "float"]),
-        ({"bssd": "yes"}, ["bssd", "bool"]),
+        ({"duration_s": "long"}, ["scenario.duration_s = 'long'", "a number of seconds > 0"]),
+        ({"bssd": "yes"}, ["scenario.bssd = 'yes'", "true or false"]),
         ({"ins_grade": "nope"}, ["ins_grade", "nope", "span_cpt"]),
         # a module attribute is not a preset (it used to pass a hasattr check on sim.sensors)
         ({"imu_grade": "__name__"}, ["imu_grade", "__name__", "crossbow_imu300cc"]),

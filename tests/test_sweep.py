@@ -649,7 +649,7 @@ def test_toml_study_definition(tmp_path):
         ("durations_s = [10, 30]", "durations_s = [10, -5]",
          r"study\.durations_s\[1\] = -5: expected a number of seconds > 0"),
         ("durations_s = [10, 30]", "durations_s = [10, 10]",
-         r"study\.durations_s\[1\] = 10\.0: expected distinct values"),
+         r"study\.durations_s\[1\] = 10: expected distinct values"),
         ("chunk_size = 32", "chunk_size = 0", r"study\.chunk_size = 0: expected a whole"),
         ("realizations = 3", "realizations = 2.5", r"study\.realizations = 2\.5"),
         ('metric_window = "with_ramp"', 'metric_window = "full"',

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
+from jaxnav.core import schema
 from jaxnav.core import states as st
 from jaxnav.ins import errors as ins_errors
 from jaxnav.io import imu as imu_io
@@ -34,7 +35,7 @@ UG_M_S2 = imu_io.STANDARD_GRAVITY * 1e-6  # m/s^2 per micro-g
 # ----------------------------------------------------------------------------------------------
 # Car configuration (TOML)
 # ----------------------------------------------------------------------------------------------
-class CarConfigError(ValueError):
+class CarConfigError(schema.SchemaError):
     """An invalid car configuration; the message names the file, section, key and expectation."""
 
 
@@ -113,143 +114,61 @@ _REQUIRED = (
     "imu_errors_gyro_noise_deg_s_sqrt_hz", "imu_errors_accel_noise_ug_sqrt_hz",
     "lever_arms_imu_frd_m", "lever_arms_antenna_frd_m",
 )  # fmt: skip
-_SECTIONS = ("imu", "imu_errors", "lever_arms", "gnss", "constraints", "alignment", "filter",
-             "sweep")  # fmt: skip
-# Value checks per field kind: (predicate, expectation text).
-_NONNEG = ("a number >= 0", lambda v: v >= 0)
-_POS = ("a number > 0", lambda v: v > 0)
-_ANY = ("a number", lambda v: True)
-_CHECKS: dict[str, tuple[str, Any]] = {
-    "imu_time_offset_s": _ANY,
-    "imu_resample_hz": _POS,
-    "imu_errors_gyro_noise_deg_s_sqrt_hz": _POS,
-    "imu_errors_accel_noise_ug_sqrt_hz": _POS,
-    "imu_errors_gyro_bias_gm_tau_s": _POS,
-    "imu_errors_accel_bias_gm_tau_s": _POS,
-    "constraints_nhc_sigma_m_s": _POS,
-    "constraints_zupt_sigma_m_s": _POS,
-    "constraints_zupt_threshold": _POS,
-    "constraints_zupt_max_speed_m_s": _POS,
-    "constraints_zupt_gnss_speed_m_s": _POS,
-    "alignment_level_s": _POS,
-    "alignment_min_speed_m_s": _POS,
-    "filter_gate_chi2": _POS,
-    "sweep_spacing_s": _POS,
-    "sweep_convergence_s": _NONNEG,
-    "sweep_recovery_s": _NONNEG,
+_NUM, _NONNEG, _POS = schema.number(), schema.number(0), schema.number(0, strict=True)
+_VEC3 = schema.items(_NUM, length=3, unique=False)
+_VIB3 = schema.items(_NONNEG, length=3, unique=False)
+#: [section] -> key -> rule; the keys are the ``CarConfig`` fields ``section_key``.
+SCHEMA: dict[str, dict[str, schema.Rule]] = {
+    "imu": {"mounting_rpy_deg": _VEC3, "misalignment_rpy_deg": _VEC3, "time_offset_s": _NUM,
+            "gyro_unit": schema.choice(("deg/s", "rad/s")),
+            "accel_unit": schema.choice(("g", "m/s^2")), "resample_hz": _POS},
+    "imu_errors": {
+        "states": schema.choice(LAYOUTS),
+        "gyro_noise_deg_s_sqrt_hz": _POS, "accel_noise_ug_sqrt_hz": _POS,
+        "gyro_vibration_deg_s_sqrt_hz": _VIB3, "accel_vibration_ug_sqrt_hz": _VIB3,
+        "gyro_bias_turn_on_deg_s": _NONNEG, "gyro_bias_gm_sigma_deg_h": _NONNEG,
+        "gyro_bias_gm_tau_s": _POS, "accel_bias_turn_on_mg": _NONNEG,
+        "accel_bias_gm_sigma_mg": _NONNEG, "accel_bias_gm_tau_s": _POS,
+        "gyro_scale_ppm": _NONNEG, "accel_scale_ppm": _NONNEG,
+    },
+    "lever_arms": {"imu_frd_m": _VEC3, "antenna_frd_m": _VEC3, "nhc_point_frd_m": _VEC3},
+    "gnss": {"use_velocity": schema.boolean(), "pos_sigma_floor_m": _NONNEG,
+             "vel_sigma_floor_m_s": _NONNEG},
+    "constraints": {
+        "nhc": schema.boolean(), "nhc_sigma_m_s": _POS, "zupt": schema.boolean(),
+        "zaru": schema.boolean(), "zupt_sigma_m_s": _POS, "zupt_threshold": _POS,
+        "zupt_ref_sigma_m_s2": schema.either(schema.literal("start"), _POS),
+        "zupt_max_speed_m_s": _POS, "zupt_with_gnss_vel": schema.boolean(),
+        "zupt_gnss_speed_m_s": _POS,
+    },
+    "alignment": {"level_s": _POS, "min_speed_m_s": _POS, "heading_floor_deg": _NONNEG,
+                  "roll_pitch_sigma_deg": _NONNEG, "vel_sigma_m_s": _NONNEG},
+    "filter": {"cov_substeps": schema.whole(1),
+               "gate_chi2": schema.number(0, strict=True, specials={"inf": float("inf")})},
+    "sweep": {"modes": schema.items(schema.choice(SWEEP_MODES)),
+              "durations_s": schema.items(_POS), "spacing_s": _POS, "convergence_s": _NONNEG,
+              "recovery_s": _NONNEG, "chunk_size": schema.whole(1)},
 }
-_CHOICES = {
-    "imu_gyro_unit": ("deg/s", "rad/s"),
-    "imu_accel_unit": ("g", "m/s^2"),
-    "imu_errors_states": tuple(LAYOUTS),
-}
-
-
-def _is_num(v) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _field_types() -> dict[str, Any]:
-    return {f.name: f.type for f in dataclasses.fields(CarConfig)}
-
-
-def _convert(source: str, name: str, value, ftype: str):
-    section, key = next(
-        (s, name[len(s) + 1 :]) for s in sorted(_SECTIONS, key=len, reverse=True)
-        if name.startswith(s + "_")
-    )
-    where = f"{source}: [{section}] {key} = {value!r}"
-
-    def fail(expected):
-        raise CarConfigError(f"{where}: expected {expected}")
-
-    if ftype == "bool":
-        if not isinstance(value, bool):
-            fail("true or false")
-        return value
-    if ftype == "str":
-        allowed = _CHOICES.get(name)
-        if not isinstance(value, str) or (allowed and value not in allowed):
-            fail("one of " + ", ".join(map(repr, allowed)) if allowed else "a string")
-        return value
-    if ftype == "int":
-        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-            fail("a whole number >= 1")
-        return value
-    if ftype == "float":
-        text, ok = _CHECKS.get(name, _NONNEG)
-        if name == "filter_gate_chi2" and value == "inf":
-            return float("inf")
-        if not _is_num(value) or not ok(value):
-            fail(text + (' (or "inf")' if name == "filter_gate_chi2" else ""))
-        return float(value)
-    if ftype == "str | float":  # constraints.zupt_ref_sigma_m_s2
-        if value == "start":
-            return value
-        if not _is_num(value) or value <= 0:
-            fail('"start" or a number > 0')
-        return float(value)
-    if ftype == "tuple[float, float, float]":
-        ok3 = isinstance(value, list) and len(value) == 3 and all(map(_is_num, value))
-        if "vibration" in name and ok3 and min(value) < 0:
-            ok3 = False
-        if not ok3:
-            fail("a list of 3 numbers" + (" >= 0" if "vibration" in name else ""))
-        return tuple(float(v) for v in value)
-    if ftype == "tuple[float, ...]":
-        if not isinstance(value, list) or not value or not all(_is_num(v) and v > 0
-                                                             for v in value):
-            fail("a non-empty list of numbers > 0")
-        if len(set(value)) != len(value):
-            fail("distinct values")
-        return tuple(float(v) for v in value)
-    if ftype == "tuple[str, ...]":
-        if (not isinstance(value, list) or not value
-                or not all(isinstance(v, str) and v in SWEEP_MODES for v in value)):
-            fail("a non-empty list of modes from " + ", ".join(map(repr, SWEEP_MODES)))
-        if len(set(value)) != len(value):
-            fail("distinct values")
-        return tuple(value)
-    raise AssertionError(ftype)  # pragma: no cover
 
 
 def config_from_dict(data: Mapping, source: str = "<config>") -> CarConfig:
     """Validate the TOML tables and build a ``CarConfig`` (errors name file, section and key)."""
-    types = _field_types()
-    values: dict[str, Any] = {}
-    for section, table in data.items():
-        if section not in _SECTIONS:
-            raise CarConfigError(
-                f"{source}: unknown section [{section}]; allowed: "
-                + ", ".join(f"[{s}]" for s in _SECTIONS)
-            )
-        if not isinstance(table, Mapping):
-            raise CarConfigError(f"{source}: {section} = {table!r}: expected a [{section}] table")
-        for key, value in table.items():
-            name = f"{section}_{key}"
-            allowed = [f[len(section) + 1 :] for f in types if f.startswith(section + "_")
-                       and not any(f.startswith(s + "_") for s in _SECTIONS
-                                   if len(s) > len(section) and s.startswith(section))]
-            if name not in types or key not in allowed:
-                raise CarConfigError(
-                    f"{source}: unknown key [{section}] {key}; allowed keys in [{section}]: "
-                    + ", ".join(allowed)
-                )
-            values[name] = _convert(source, name, value, types[name])
-    missing = [n for n in _REQUIRED if n not in values]
-    if missing:
-        n = missing[0]
-        section = next(s for s in sorted(_SECTIONS, key=len, reverse=True)
-                       if n.startswith(s + "_"))
-        raise CarConfigError(
-            f"{source}: missing key [{section}] {n[len(section) + 1 :]} (sensor-specific, no "
-            f"default)"
-        )
-    cfg = CarConfig(**values)
-    k = cfg.imu_resample_hz
-    if abs(k - round(k)) > 1e-9:
-        raise CarConfigError(f"{source}: [imu] resample_hz = {k!r}: expected a whole number of Hz")
-    return cfg
+    try:
+        schema.check_sections(data, SCHEMA, CarConfigError)
+        values: dict[str, Any] = {}
+        for section, rules in SCHEMA.items():
+            required = [n[len(section) + 1:] for n in _REQUIRED
+                        if n.startswith(section + "_") and n[len(section) + 1:] in rules]
+            got = schema.check_section(section, data.get(section, {}), rules,
+                                       required=required, error=CarConfigError,
+                                       note="sensor-specific, no default")
+            values.update({f"{section}_{k}": v for k, v in got.items()})
+        k = values.get("imu_resample_hz", CarConfig.imu_resample_hz)
+        if abs(k - round(k)) > 1e-9:
+            schema.fail("imu.resample_hz", k, "a whole number of Hz", CarConfigError)
+    except CarConfigError as e:
+        raise CarConfigError(f"{source}: {e}") from None
+    return CarConfig(**values)
 
 
 def load_config(path: str | os.PathLike) -> CarConfig:

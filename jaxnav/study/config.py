@@ -45,7 +45,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import os
 import tomllib
 from collections.abc import Mapping, Sequence
@@ -53,6 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from jaxnav.core import schema
 from jaxnav.study import outages
 
 #: ``satellites_kept`` value meaning "no outage" (``outages.ALL``); written "all" in TOML.
@@ -62,7 +62,7 @@ METRIC_WINDOWS = ("core", "with_ramp")
 EVENT_NAMES = ("straight", "turn", "stop", "slope", "speed_change")
 
 
-class ConfigError(ValueError):
+class ConfigError(schema.SchemaError):
     """An invalid study definition; the message names the key, the value and what is allowed."""
 
 
@@ -176,130 +176,78 @@ def _thaw(x):
 
 
 def _fail(key: str, value, expected: str):
-    raise ConfigError(f"{key} = {value!r}: expected {expected}")
+    schema.fail(key, value, expected, ConfigError)
 
 
-def _is_num(v) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+def _labels(allowed: Sequence[str] | None) -> schema.Rule:
+    """The factory's labels (a declared table) or, without a factory, any non-empty string."""
+    return schema.items(schema.text() if allowed is None else schema.choice(allowed))
 
 
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
+_SECONDS = schema.number(0, unit="seconds")
+_POSITIVE_SECONDS = schema.number(0, strict=True, unit="seconds")
+_METRES = schema.number(0, strict=True, unit="metres")
+_KEPT = schema.either(schema.whole(0), schema.literal("all"))
+
+_PLACEMENT_SCHEMA = {
+    "kind": schema.choice(PLACEMENT_KINDS),
+    "convergence_s": _SECONDS,
+    "spacing_s": _POSITIVE_SECONDS,
+    "count": schema.whole(1),
+    "min_spacing_s": _SECONDS,
+    "events": schema.items(schema.choice(EVENT_NAMES)),
+    "max_per_event": schema.whole(1),
+    "min_event_s": _POSITIVE_SECONDS,
+    "file": schema.text(),
+}
+#: placement keys that only one kind uses
+_PLACEMENT_USED_BY = {"spacing_s": "grid", "count": "random", "file": "schedule",
+                      "events": "events", "max_per_event": "events", "min_event_s": "events"}
+_METRICS_SCHEMA = {
+    "reconv_threshold_m": _METRES,
+    "reconv_factor": schema.number(0),
+    "pre_s": _SECONDS,
+    "min_distance_m": _METRES,
+}
 
 
-def _seconds(key, v, *, positive: bool):
-    if not _is_num(v) or (v <= 0 if positive else v < 0):
-        _fail(key, v, "a number of seconds " + ("> 0" if positive else ">= 0"))
-    return float(v)
+def _study_schema(modes, systems) -> dict[str, schema.Rule]:
+    return {
+        "name": schema.text(),
+        "modes": _labels(modes),
+        "systems": _labels(systems),
+        "durations_s": schema.items(_POSITIVE_SECONDS),
+        "satellites_kept": schema.items(_KEPT),
+        "policies": schema.items(schema.choice(outages.POLICIES)),
+        "ramps_s": schema.items(_SECONDS),
+        "realizations": schema.whole(1),
+        "seed": schema.whole(0),
+        "recovery_s": _SECONDS,
+        "chunk_size": schema.whole(1),
+        "max_traces": schema.whole(0),
+        "metric_window": schema.choice(METRIC_WINDOWS),
+    }
 
 
-def _nonempty_list(key, v):
-    if not isinstance(v, list | tuple) or len(v) == 0:
-        _fail(key, v, "a non-empty list")
-    return list(v)
-
-
-def _unique(key, values):
-    seen = set()
-    for i, v in enumerate(values):
-        if v in seen:
-            _fail(f"{key}[{i}]", v, "distinct values (duplicate)")
-        seen.add(v)
-    return values
-
-
-def _choices(key, v, allowed: Sequence[str] | None):
-    """A non-empty list of distinct strings, each in ``allowed`` (when given)."""
-    out = []
-    for i, s in enumerate(_nonempty_list(key, v)):
-        if not isinstance(s, str) or not s:
-            _fail(f"{key}[{i}]", s, "a non-empty string")
-        if allowed is not None and s not in allowed:
-            _fail(f"{key}[{i}]", s, f"one of {', '.join(map(repr, allowed))}")
-        out.append(s)
-    return tuple(_unique(key, out))
-
-
-def _check_keys(section: str, table: Mapping, allowed: Sequence[str]):
-    for k in table:
-        if k not in allowed:
-            raise ConfigError(
-                f"unknown key {section}.{k} (value {table[k]!r}); allowed keys in [{section}]: "
-                f"{', '.join(allowed)}"
-            )
+_STUDY_KEYS = tuple(_study_schema(None, None))
 
 
 def _placement(t: Mapping, base_dir: Path | None) -> PlacementConfig:
-    names = [f.name for f in dataclasses.fields(PlacementConfig)]
-    _check_keys("placement", t, names)
-    d = dict(t)
-    kind = d.get("kind", "grid")
-    if kind not in PLACEMENT_KINDS:
-        _fail("placement.kind", kind, f"one of {', '.join(map(repr, PLACEMENT_KINDS))}")
-    out: dict[str, Any] = {"kind": kind}
-    if "convergence_s" in d:
-        out["convergence_s"] = _seconds("placement.convergence_s", d["convergence_s"],
-                                        positive=False)
-    if "spacing_s" in d:
-        out["spacing_s"] = _seconds("placement.spacing_s", d["spacing_s"], positive=True)
-    if "min_spacing_s" in d:
-        out["min_spacing_s"] = _seconds("placement.min_spacing_s", d["min_spacing_s"],
-                                        positive=False)
-    if "min_event_s" in d:
-        out["min_event_s"] = _seconds("placement.min_event_s", d["min_event_s"], positive=True)
-    if "count" in d:
-        if not _is_int(d["count"]) or d["count"] < 1:
-            _fail("placement.count", d["count"], "a whole number >= 1")
-        out["count"] = d["count"]
-    if "max_per_event" in d:
-        if not _is_int(d["max_per_event"]) or d["max_per_event"] < 1:
-            _fail("placement.max_per_event", d["max_per_event"], "a whole number >= 1")
-        out["max_per_event"] = d["max_per_event"]
-    if "events" in d:
-        out["events"] = _choices("placement.events", d["events"], EVENT_NAMES)
-    if "file" in d:
-        f = d["file"]
-        if not isinstance(f, str) or not f:
-            _fail("placement.file", f, "the path of an id,start_s,length_s file")
-        p = Path(f)
+    out = schema.check_section("placement", t, _PLACEMENT_SCHEMA, error=ConfigError)
+    kind = out.setdefault("kind", "grid")
+    if kind == "schedule":
+        if "file" not in out:
+            _fail("placement.file", None, "a schedule file when placement.kind = 'schedule'")
+        p = Path(out["file"])
         if base_dir is not None and not p.is_absolute():
             p = base_dir / p
         out["file"] = str(p)
-    if kind == "schedule" and "file" not in out:
-        _fail("placement.file", None, "a schedule file when placement.kind = 'schedule'")
-    if kind == "schedule" and not Path(out["file"]).is_file():
-        _fail("placement.file", out["file"], "an existing id,start_s,length_s file")
-    for k in ("spacing_s", "count", "events", "max_per_event", "min_event_s", "file"):
-        used_by = {"spacing_s": ("grid",), "count": ("random",), "file": ("schedule",)}.get(
-            k, ("events",)
-        )
-        if k in d and kind not in used_by:
-            _fail(f"placement.{k}", d[k], f"no value: it is used only by kind {used_by[0]!r}")
+        if not p.is_file():
+            _fail("placement.file", out["file"], "an existing id,start_s,length_s file")
+    for k, used_by in _PLACEMENT_USED_BY.items():
+        if k in out and kind != used_by:
+            _fail(f"placement.{k}", t[k], f"no value: it is used only by kind {used_by!r}")
     return PlacementConfig(**out)
-
-
-def _metrics(t: Mapping) -> MetricsConfig:
-    names = [f.name for f in dataclasses.fields(MetricsConfig)]
-    _check_keys("metrics", t, names)
-    out = {}
-    for k, v in t.items():
-        if k == "reconv_factor":
-            if not _is_num(v) or v < 0:
-                _fail("metrics.reconv_factor", v, "a number >= 0")
-            out[k] = float(v)
-        elif k == "pre_s":
-            out[k] = _seconds("metrics.pre_s", v, positive=False)
-        else:  # metres
-            if not _is_num(v) or v <= 0:
-                _fail(f"metrics.{k}", v, "a number of metres > 0")
-            out[k] = float(v)
-    return MetricsConfig(**out)
-
-
-_STUDY_KEYS = (
-    "name", "modes", "systems", "durations_s", "satellites_kept", "policies", "ramps_s",
-    "realizations", "seed", "recovery_s", "chunk_size", "max_traces", "metric_window",
-)
 
 
 def from_dict(
@@ -311,74 +259,20 @@ def from_dict(
 ) -> StudyConfig:
     """Build and validate a StudyConfig from the TOML tables (``modes`` / ``systems``: the
     labels the scenario factory accepts; None = any non-empty string)."""
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"expected a table of sections, got {type(data).__name__}")
-    for k in data:
-        if k not in _SECTIONS:
-            raise ConfigError(
-                f"unknown section or key [{k}]; allowed sections: {', '.join(_SECTIONS)}"
-            )
-        if not isinstance(data[k], Mapping):
-            _fail(k, data[k], f"a [{k}] table")
+    schema.check_sections(data, _SECTIONS, ConfigError)
     if "study" not in data:
         raise ConfigError("missing section [study] (with at least modes and systems)")
-    s = dict(data["study"])
-    _check_keys("study", s, _STUDY_KEYS)
-    for k in ("modes", "systems"):
-        if k not in s:
-            raise ConfigError(f"missing key study.{k}")
-    out: dict[str, Any] = {
-        "modes": _choices("study.modes", s["modes"], modes),
-        "systems": _choices("study.systems", s["systems"], systems),
-    }
-    if "name" in s:
-        if not isinstance(s["name"], str) or not s["name"]:
-            _fail("study.name", s["name"], "a non-empty string")
-        out["name"] = s["name"]
-    if "durations_s" in s:
-        out["durations_s"] = tuple(
-            _unique("study.durations_s", [
-                _seconds(f"study.durations_s[{i}]", v, positive=True)
-                for i, v in enumerate(_nonempty_list("study.durations_s", s["durations_s"]))
-            ])
-        )
-    if "satellites_kept" in s:
-        kept = []
-        for i, v in enumerate(_nonempty_list("study.satellites_kept", s["satellites_kept"])):
-            if v == "all":
-                kept.append(ALL)
-            elif _is_int(v) and v >= 0:
-                kept.append(v)
-            else:
-                _fail(f"study.satellites_kept[{i}]", v, 'a whole number >= 0 or "all"')
-        out["satellites_kept"] = tuple(_unique("study.satellites_kept", kept))
-    if "policies" in s:
-        out["policies"] = _choices("study.policies", s["policies"], outages.POLICIES)
-    if "ramps_s" in s:
-        out["ramps_s"] = tuple(
-            _unique("study.ramps_s", [
-                _seconds(f"study.ramps_s[{i}]", v, positive=False)
-                for i, v in enumerate(_nonempty_list("study.ramps_s", s["ramps_s"]))
-            ])
-        )
-    for k, lo in (("realizations", 1), ("seed", 0), ("chunk_size", 1), ("max_traces", 0)):
-        if k in s:
-            if not _is_int(s[k]) or s[k] < lo:
-                _fail(f"study.{k}", s[k], f"a whole number >= {lo}")
-            out[k] = s[k]
-    if "recovery_s" in s:
-        out["recovery_s"] = _seconds("study.recovery_s", s["recovery_s"], positive=False)
-    if "metric_window" in s:
-        if s["metric_window"] not in METRIC_WINDOWS:
-            _fail("study.metric_window", s["metric_window"],
-                  f"one of {', '.join(map(repr, METRIC_WINDOWS))}")
-        out["metric_window"] = s["metric_window"]
+    out = schema.check_section("study", data["study"], _study_schema(modes, systems),
+                               required=("modes", "systems"), error=ConfigError)
+    if "satellites_kept" in out:
+        out["satellites_kept"] = tuple(ALL if k == "all" else k for k in out["satellites_kept"])
     base = None if base_dir is None else Path(base_dir)
     out["placement"] = _placement(data.get("placement", {}), base)
-    out["metrics"] = _metrics(data.get("metrics", {}))
+    out["metrics"] = MetricsConfig(**schema.check_section(
+        "metrics", data.get("metrics", {}), _METRICS_SCHEMA, error=ConfigError))
     out["scenario"] = _freeze(dict(data.get("scenario", {})))
-    if out["placement"].kind == "schedule" and "durations_s" in s:
-        _fail("study.durations_s", s["durations_s"],
+    if out["placement"].kind == "schedule" and "durations_s" in out:
+        _fail("study.durations_s", data["study"]["durations_s"],
               "no value when placement.kind = 'schedule' (the file gives each length)")
     return validate(StudyConfig(**out), modes=modes, systems=systems)
 
@@ -387,8 +281,9 @@ def validate(
     cfg: StudyConfig, *, modes: Sequence[str] | None = None, systems: Sequence[str] | None = None
 ) -> StudyConfig:
     """Cross-field checks on a StudyConfig (and the factory's labels); returns it."""
-    _choices("study.modes", list(cfg.modes), modes)
-    _choices("study.systems", list(cfg.systems), systems)
+    for key, labels in (("modes", modes), ("systems", systems)):
+        schema.check_section("study", {key: list(getattr(cfg, key))},
+                             {key: _labels(labels)}, error=ConfigError)
     if cfg.seed + cfg.realizations >= 2**31:
         _fail("study.seed", cfg.seed, f"seed + realizations < 2**31 (realizations = "
               f"{cfg.realizations})")

@@ -43,12 +43,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import geodesy
+from jaxnav.core import schema
 from jaxnav.core.states import INS15, INS21, RISS9, RISS16
 from jaxnav.filter import cascade, loose, ppp_only, systems, tight
 from jaxnav.gnss import modes as ppp_modes
 from jaxnav.gnss import ppp, signals
 from jaxnav.sim import constellation, observations, scenario, sensors
 from jaxnav.study import metrics
+from jaxnav.study.config import ConfigError
 from jaxnav.study.sweep import Problem, Timeline, tight_ops
 
 #: Loosely coupled systems (``filter.cascade``): INS layout, NHC rows, ZUPT / ZARU at detected
@@ -73,25 +75,26 @@ PPP_ALONE = "ppp_alone"
 # (measured: 2 of 7 used, the error grows with the distance flown).
 PPP_ALONE_MODEL = "constant_velocity"
 SYSTEMS = ("riss", "riss9", "ins15", "ins21", *LC_SYSTEMS, *TC_NHC_SYSTEMS, PPP_ALONE)
-_SCENARIO_KEYS = {
-    "drive_seed": int,
-    "drive_style": str,
-    "duration_s": float,
-    "imu_grade": str,
-    "ins_grade": str,
-    "odometer": str,
-    "iono_scale": float,
-    "constellations": list,
-    "slots": list,
-    "bssd": bool,
-    "iono_model": str,
-}
 #: [scenario] iono_model -> (simulator GIM error fraction, the filters' model residual fraction).
 #: The filters' fraction is the simulated residual's sigma (0.3 x the GM residual, times 0.25
 #: for the GIM), rounded up.
 IONO_MODELS = {"klobuchar": (None, 0.3), "gim": (0.25, 0.1)}
 _CONSTELLATIONS = {"gps": signals.SYS_GPS, "glonass": signals.SYS_GLO, "galileo": signals.SYS_GAL}
 _DRIVE_STYLES = ("mixed", "urban", "suburban", "highway", "airborne")
+#: The [scenario] table of a study on simulated drives (``core/schema.py`` rules).
+SCENARIO_SCHEMA = {
+    "drive_seed": schema.whole(0),
+    "drive_style": schema.choice(_DRIVE_STYLES),
+    "duration_s": schema.number(0, strict=True, unit="seconds"),
+    "imu_grade": schema.choice(sensors.IMU_GRADES, "RISS sensor presets"),
+    "ins_grade": schema.choice(sensors.IMU_GRADES, "full-IMU presets"),
+    "odometer": schema.choice(sensors.ODOMETERS),
+    "iono_scale": schema.number(0),
+    "constellations": schema.items(schema.choice(_CONSTELLATIONS)),
+    "slots": schema.items(schema.whole(1), length=3, unique=False),
+    "bssd": schema.boolean(),
+    "iono_model": schema.choice(IONO_MODELS),
+}
 _STATIC_CALIBRATION_EPOCHS = 30  # the drives start with a 60 s standstill
 
 
@@ -103,54 +106,18 @@ class SimFactory:
 
     def __init__(self, table: dict | None = None):
         table = dict(table or {})
-        unknown = set(table) - set(_SCENARIO_KEYS)
-        if unknown:
-            raise ValueError(
-                f"[scenario] has unknown keys {sorted(unknown)}; allowed: {sorted(_SCENARIO_KEYS)}"
-            )
-        for k, v in table.items():
-            if not isinstance(v, _SCENARIO_KEYS[k]) and not (
-                _SCENARIO_KEYS[k] is float and isinstance(v, int) and not isinstance(v, bool)
-            ):
-                raise ValueError(
-                    f"[scenario] {k} = {v!r}: expected a {_SCENARIO_KEYS[k].__name__}"
-                )
-        self.table = {k: _SCENARIO_KEYS[k](v) for k, v in table.items()}
+        t = schema.check_section("scenario", table, SCENARIO_SCHEMA, error=ConfigError)
+        if "gps" not in t.get("constellations", ("gps",)):
+            schema.fail("scenario.constellations", table["constellations"],
+                        "a list containing 'gps' (the reference system)", ConfigError)
+        self.table = {k: list(v) if isinstance(v, tuple) else v for k, v in t.items()}
         # compiled simulators by (single frequency, IMU grade): one per factory (``_realize``)
         self._realize_fns: dict[tuple[bool, str], object] = {}
-        t = self.table
-        names = t.get("constellations", ["gps"])
-        bad = [c for c in names if c not in _CONSTELLATIONS]
-        if bad or not names or "gps" not in names:
-            raise ValueError(
-                f"[scenario] constellations = {names!r}: expected a list containing 'gps' and "
-                f"optionally {sorted(set(_CONSTELLATIONS) - {'gps'})} (GPS is the reference)"
-            )
-        slots = t.get("slots", [16, 14, 14])
-        if len(slots) != 3 or not all(isinstance(n, int) and n > 0 for n in slots):
-            raise ValueError(
-                f"[scenario] slots = {slots!r}: expected three positive integers "
-                "(GPS, GLONASS, Galileo)"
-            )
-        if t.get("drive_style", "mixed") not in _DRIVE_STYLES:
-            raise ValueError(
-                f"[scenario] drive_style = {t['drive_style']!r}: expected one of {_DRIVE_STYLES}"
-            )
-        if t.get("iono_model", "klobuchar") not in IONO_MODELS:
-            raise ValueError(
-                f"[scenario] iono_model = {t['iono_model']!r}: expected one of "
-                f"{sorted(IONO_MODELS)}"
-            )
+        names = t.get("constellations", ("gps",))
+        slots = t.get("slots", (16, 14, 14))
         gim_fraction, self.iono_model_fraction = IONO_MODELS[t.get("iono_model", "klobuchar")]
         self.bssd = t.get("bssd", False)
         grades = [t.get("imu_grade", "crossbow_imu300cc"), t.get("ins_grade", "span_cpt")]
-        for key, name, table in (("imu_grade", grades[0], sensors.IMU_GRADES),
-                                 ("ins_grade", grades[1], sensors.IMU_GRADES),
-                                 ("odometer", t.get("odometer", "obd2_odometer"),
-                                  sensors.ODOMETERS)):
-            if name not in table:
-                raise ValueError(f"[scenario] {key} = {name!r}: expected one of "
-                                 f"{', '.join(table)}")
         self.cfg = scenario.ScenarioConfig(
             drive_seed=t.get("drive_seed", 0),
             drive_style=t.get("drive_style", "mixed"),
