@@ -101,3 +101,13 @@ def run_quick_experiment():
         return report.read_text()
 
     return run
+
+
+sys.path.insert(0, str(Path(__file__).with_name("goldens")))
+import outputs as _golden_outputs  # noqa: E402  (tests/goldens/outputs.py)
+
+
+@pytest.fixture(scope="session")
+def goldens():
+    """``tests/goldens/outputs.py``: ``goldens.check(name, goldens.numbers_in(folder))``."""
+    return _golden_outputs

@@ -54,7 +54,7 @@ def test_invalid_config_is_rejected_before_any_work(tmp_path, capsys, old, new, 
     assert not out.exists()
 
 
-def test_tiny_sweep_writes_results_tables_and_plots(tmp_path):
+def test_tiny_sweep_writes_results_tables_and_plots(tmp_path, goldens):
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(TINY)
     out = tmp_path / "out"
@@ -65,6 +65,7 @@ def test_tiny_sweep_writes_results_tables_and_plots(tmp_path):
     best = ds["max_2d_m"].sel(satellites_kept=-1).mean()
     assert float(worst) > float(best)  # a complete outage is worse than none
     assert (out / "table.md").read_text().count("|") > 10
+    goldens.check("tiny_sweep", goldens.numbers_in(out))  # refactors keep the numbers
     # An existing result is never silently overwritten.
     with pytest.raises(Exception, match="exist|overwrite"):
         cli.main(["sweep", str(cfg), "--out", str(out)])
@@ -102,3 +103,14 @@ def test_list_prints_what_the_registries_hold(capsys):
     with pytest.raises(SystemExit) as e:
         cli.main(["list", "grades"])
     assert e.value.code == 2
+
+
+@pytest.mark.full
+def test_demo_table_matches_its_golden(tmp_path, goldens):
+    """The main job (README): ``jaxnav demo``'s results and table.md keep their numbers (90 s on
+    2 cores, hence ``full``; the tiny sweep above and seed000's quick form check the same path
+    in CI)."""
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--out", str(out)]) == 0
+    goldens.check("demo", goldens.numbers_in(out)
+                  | goldens.table_numbers((out / "table.md").read_text(), "table.md"))

@@ -54,8 +54,9 @@ def _max_2d(out: Path, sweep_dir: str, **sel) -> float:
     return float(ds["max_2d_m"].sel(**sel).mean())
 
 
-def test_seed000_quick(run_quick_experiment, tmp_path):
+def test_seed000_quick(run_quick_experiment, tmp_path, goldens):
     text = run_quick_experiment("seed000_ppp_riss_outages", tmp_path)
+    goldens.check("seed000_quick", goldens.numbers_in(tmp_path) | goldens.table_numbers(text))
     _check_report(text, tmp_path,
                   {"error_growth_suburban.png", "dist_by_satellites_suburban.png",
                    "error_growth_urban.png", "dist_by_satellites_urban.png", "seed_vs_ours.png"},
@@ -71,8 +72,9 @@ def test_seed000_quick(run_quick_experiment, tmp_path):
         assert three < zero, drive
 
 
-def test_seed004_quick(run_quick_experiment, tmp_path):
+def test_seed004_quick(run_quick_experiment, tmp_path, goldens):
     text = run_quick_experiment("seed004_multignss", tmp_path)
+    goldens.check("seed004_quick", goldens.numbers_in(tmp_path) | goldens.table_numbers(text))
     _check_report(text, tmp_path,
                   {"error_growth.png", "dist_by_duration.png", "rms_full_availability.png"},
                   "max 2D, 10-s outage, GPS UD vs 'decimetre level' (<= 1 m) [m]")

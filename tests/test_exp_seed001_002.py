@@ -36,8 +36,9 @@ def _check_report(text, out, must_contain):
     assert all(p.stat().st_size > 5000 for p in pngs)  # a real figure, not an empty canvas
 
 
-def test_seed001_quick(run_quick_experiment, tmp_path):
+def test_seed001_quick(run_quick_experiment, tmp_path, goldens):
     text = run_quick_experiment("seed001_ic_ppp_ins", tmp_path)
+    goldens.check("seed001_quick", goldens.numbers_in(tmp_path) | goldens.table_numbers(text))
     _check_report(text, tmp_path, ["Table 2", "Table 3", "Table 5", "GIM"])
     # S001 Table 5: through frequent partial outages (3 satellites kept) the INS-aided IC-PPP
     # keeps the position better than IC-PPP alone. The quick form's 90-s window comes before
@@ -50,8 +51,9 @@ def test_seed001_quick(run_quick_experiment, tmp_path):
     assert rms_3d["IC-PPP/INS15"] < rms_3d["IC-PPP alone"]
 
 
-def test_seed002_quick(run_quick_experiment, tmp_path):
+def test_seed002_quick(run_quick_experiment, tmp_path, goldens):
     text = run_quick_experiment("seed002_df_ppp_riss", tmp_path)
+    goldens.check("seed002_quick", goldens.numbers_in(tmp_path) | goldens.table_numbers(text))
     _check_report(text, tmp_path, ["Table 5.2", "Table 5.1", "< 1.5 m", "Table 4"])
     # S002 Tables 5.1-5.2: through overpasses PPP alone loses its solution, while DF-PPP/RISS
     # bridges them with a smaller maximum 2D error than PPP alone (quick run measured 113 vs

@@ -20,13 +20,15 @@ EXP = Path(__file__).resolve().parents[1] / "experiments"
 
 
 @pytest.mark.heavy
-def test_seed003_quick_writes_report(tmp_path):
+def test_seed003_quick_writes_report(tmp_path, goldens):
     proc = subprocess.run(
         [sys.executable, str(EXP / "seed003_lc_vs_tc.py"), "--quick", "--out", str(tmp_path)],
         cwd=EXP, capture_output=True, text=True, timeout=900,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = (tmp_path / "report.md").read_text()
+    goldens.check("seed003_quick",
+                  goldens.numbers_in(tmp_path, skip=("run_s", "wall_s")) | goldens.table_numbers(report))
     for heading in ("Seed figures", "Seed vs ours", "NHC gain", "Discussion"):
         assert f"## {heading}" in report
     assert (tmp_path / "attitude_errors.png").stat().st_size > 0

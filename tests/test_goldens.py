@@ -39,3 +39,22 @@ def test_case_matches_its_golden_run(golden, name):
             continue
         scale = np.max(np.abs(want)) if want.size else 0.0
         np.testing.assert_allclose(got, want, rtol=0, atol=RTOL * scale + 1e-300, err_msg=field)
+
+
+def test_output_goldens_catch_a_change_above_1e_9(tmp_path, monkeypatch, goldens):
+    """The whole-run check (tests/goldens/outputs.py) fails on a 1e-8 relative change, a new or
+    missing key, a flipped integer, and passes on the recorded values themselves."""
+    monkeypatch.setattr(goldens, "DIR", tmp_path)
+    monkeypatch.setattr(goldens, "RECORD", True)
+    values = {"x": np.array([1.0, -2.0, np.nan]), "n": np.array([3, 4])}
+    with pytest.warns(UserWarning, match="recorded golden"):
+        goldens.check("t", values)
+    monkeypatch.setattr(goldens, "RECORD", False)
+    goldens.check("t", values)
+    goldens.check("t", {"x": values["x"] * (1 + 5e-10), "n": values["n"]})
+    for bad in ({"x": values["x"] * (1 + 1e-8), "n": values["n"]},
+                {"x": values["x"], "n": values["n"] + [0, 1]},
+                {"x": values["x"]},
+                {"x": np.array([1.0, -2.0, 0.0]), "n": values["n"]}):
+        with pytest.raises(AssertionError):
+            goldens.check("t", bad)

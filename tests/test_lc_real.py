@@ -78,9 +78,13 @@ def _window(t_rel, start, length):
     return (t_rel >= start - 1e-3) & (t_rel < start + length - 1e-3)
 
 
-def test_command_runs_and_flags_the_outage_epochs(run):
+def test_command_runs_and_flags_the_outage_epochs(run, goldens):
     assert run["rc"] == 0
     sol, t = run["sol"], run["t_rel"]
+    # refactors keep the numbers (tests/goldens/outputs.py): the solution in metres from RTK
+    goldens.check("car_drive_lc", {"enu_m": _enu_error(sol.llh, run["ref_llh"]),
+                                   "vel_enu_m_s": sol.vel_enu, "sd_neu_m": sol.sd_neu_m},
+                  atol={"enu_m": 1e-6})
     # every 4 Hz epoch of the first 3 minutes after the initial state, in order
     np.testing.assert_allclose(np.diff(sol.time_gps_s), 0.25, atol=1.5e-3)
     assert t[0] < 1.0 and DURATION_S - 0.5 < t[-1] <= DURATION_S
@@ -141,7 +145,7 @@ def test_ten_second_outage_error_is_bounded_and_reported(run):
     assert 0.3 < e2[w].max() < 0.10 * path
 
 
-def test_sweep_engine_equals_one_run_per_outage(tmp_path):
+def test_sweep_engine_equals_one_run_per_outage(tmp_path, goldens):
     """The checkpoint-forking sweep (study.sweep) on the real drive gives each outage's metrics
     of a full filter run with only that outage withheld (the brute-force definition)."""
     _need_data()
@@ -154,6 +158,7 @@ def test_sweep_engine_equals_one_run_per_outage(tmp_path):
         drive = lc.load_drive(IMU, TAG, GNSS, cfg, duration_s=200.0)
     res = lc.run_drive_sweep(cfg, drive, tmp_path / "sweep", "test", progress=False)
     ds = res.dataset
+    goldens.check("car_drive_sweep", goldens.numbers_in(tmp_path / "sweep"))  # per-outage maxima
     start_s = ds["start_s"].values.ravel()  # after the first filter epoch
     swept = ds["max_2d_m"].values.ravel()
     assert start_s.size == 4  # 60, 100, 140, 180 s (+ 10 s outage + 5 s recovery < 200 s)

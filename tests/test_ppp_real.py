@@ -241,6 +241,19 @@ def _run(prep, model, mode="float_ppp"):
     return out
 
 
+#: golden positions: 1 um (tests/goldens/outputs.py)
+UM = {"enu_m": 1e-6}
+
+
+def _golden_values(out) -> dict[str, np.ndarray]:
+    """Per-epoch ENU error from the ITRF coordinate [m], position sigmas, NIS and counts."""
+    ecef = np.asarray(jax.vmap(geodesy.llh_to_ecef)(out.llh))
+    return {"enu_m": np.stack([_enu(p) for p in ecef]),
+            "P_nav_diag": np.diagonal(np.asarray(out.P_nav), axis1=1, axis2=2),
+            "nis": np.asarray(out.nis), "dof": np.asarray(out.dof),
+            "n_sat": np.asarray(out.n_sat)}
+
+
 @needs_data
 def test_range_model_explains_the_if_code(dual):
     obs = dual.obs
@@ -274,8 +287,9 @@ def test_range_model_explains_the_if_code(dual):
 
 
 @needs_data
-def test_static_dual_frequency_ppp_converges_to_the_itrf_coordinate(dual):
+def test_static_dual_frequency_ppp_converges_to_the_itrf_coordinate(dual, goldens):
     out = _run(dual, "static")
+    goldens.check("esbc_static", _golden_values(out), atol=UM)  # refactors keep the numbers
     enu = np.stack(
         [
             _enu(geodesy.llh_to_ecef(jnp.asarray(llh)))
@@ -300,8 +314,9 @@ def test_static_dual_frequency_ppp_converges_to_the_itrf_coordinate(dual):
 
 
 @needs_data
-def test_kinematic_dual_frequency_ppp_decimetre_after_one_hour(dual):
+def test_kinematic_dual_frequency_ppp_decimetre_after_one_hour(dual, goldens):
     out = _run(dual, "random_walk")
+    goldens.check("esbc_kinematic", _golden_values(out), atol=UM)
     ecef = np.asarray(jax.vmap(geodesy.llh_to_ecef)(out.llh))
     enu = np.stack([_enu(p) for p in ecef[120:]])
     rms = np.sqrt(np.mean(enu**2, axis=0))
@@ -315,7 +330,7 @@ def test_kinematic_dual_frequency_ppp_decimetre_after_one_hour(dual):
 
 @needs_data
 @pytest.mark.parametrize("phase", [False, True], ids=["sf_code", "sf_ppp"])
-def test_cli_single_frequency_broadcast_klobuchar(esbc, tmp_path, capsys, phase):
+def test_cli_single_frequency_broadcast_klobuchar(esbc, tmp_path, capsys, phase, goldens):
     from jaxnav.apps import ppp as app
     from jaxnav.io import read_pos
 
@@ -353,6 +368,8 @@ def test_cli_single_frequency_broadcast_klobuchar(esbc, tmp_path, capsys, phase)
     assert np.all(sol.q == (6 if phase else 5))  # RTKLIB "PPP" / "single"
     ecef = np.asarray(jax.vmap(geodesy.llh_to_ecef)(jnp.asarray(sol.llh)))
     enu = np.stack([_enu(p) for p in ecef])
+    goldens.check(f"esbc_sf_{'ppp' if phase else 'code'}",
+                  {"enu_m": enu, "sd_neu_m": sol.sd_neu_m, "ns": sol.ns}, atol=UM)
     rms = np.sqrt(np.mean(enu**2, axis=0))
     spp = re.search(r"least-squares SPP RMS vs reference \((\d+) epochs\): E ([0-9.]+) "
                     r"N ([0-9.]+) U ([0-9.]+) m", text)

@@ -41,6 +41,12 @@ def quick_run(tmp_path_factory):
     return out, (out / "report.md").read_text(), sweeps[0]
 
 
+def test_outputs_match_their_golden(quick_run, goldens):
+    """Refactors keep the numbers (tests/goldens/outputs.py)."""
+    goldens.check("tutorial_quick",
+                  goldens.numbers_in(quick_run[0]) | goldens.table_numbers(quick_run[1]))
+
+
 def test_script_is_a_jupytext_percent_notebook():
     text = SCRIPT.read_text()
     assert text.startswith("# ---\n# jupyter:\n#   jupytext:\n")
