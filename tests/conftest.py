@@ -34,6 +34,16 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 # recorded with this setting). jaxnav applies it only on the jaxlib it was measured on.
 os.environ.setdefault("JAXNAV_XLA_FUSION_EMITTERS", "0")
 
+# jaxtyping shape annotations of jaxnav.filter, .gnss and .ins checked with beartype on every call
+# (installed before anything imports jaxnav; tests/test_shapes.py); JAXNAV_TYPECHECK=0 skips it.
+TYPECHECKED_PACKAGES = ("jaxnav.filter", "jaxnav.gnss", "jaxnav.ins")
+if os.environ.get("JAXNAV_TYPECHECK", "1") != "0":
+    import jaxtyping
+
+    if any(m.startswith(TYPECHECKED_PACKAGES) for m in sys.modules):
+        raise RuntimeError("jaxnav was imported before tests/conftest.py installed the type checks")
+    jaxtyping.install_import_hook(list(TYPECHECKED_PACKAGES), "beartype.beartype")
+
 HEAVY_GROUP = "heavy"
 # Work units that take longest (docs/testing.md, measured on 2 cores), started first so that
 # neither worker is left with a long unit at the end; the rest keep their collection order.

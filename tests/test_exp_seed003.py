@@ -27,8 +27,9 @@ def test_seed003_quick_writes_report(tmp_path, goldens):
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = (tmp_path / "report.md").read_text()
+    timings = ("run_s", "wall_s")
     goldens.check("seed003_quick",
-                  goldens.numbers_in(tmp_path, skip=("run_s", "wall_s")) | goldens.table_numbers(report))
+                  goldens.numbers_in(tmp_path, skip=timings) | goldens.table_numbers(report))
     for heading in ("Seed figures", "Seed vs ours", "NHC gain", "Discussion"):
         assert f"## {heading}" in report
     assert (tmp_path / "attitude_errors.png").stat().st_size > 0

@@ -15,13 +15,19 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 #: chi-square 1-dof quantiles used for per-row innovation gating.
 CHI2_1DOF_99 = 6.634896601021214
 CHI2_1DOF_999 = 10.827566170662733
 
 
-def discretize_van_loan(F, G, Qc, dt):
+def discretize_van_loan(
+    F: Float[ArrayLike, "n n"],
+    G: Float[ArrayLike, "n q"],
+    Qc: Float[ArrayLike, "q q"],
+    dt: Float[ArrayLike, ""],
+) -> tuple[Float[Array, "n n"], Float[Array, "n n"]]:
     """Exact discretisation of x' = F x + G w, E[w w^T] = Qc delta(t), over dt (Van Loan 1978).
 
     With M = [[-F, G Qc G^T], [0, F^T]] dt and E = expm(M): Phi = E22^T and Qd = Phi E12.
@@ -36,7 +42,12 @@ def discretize_van_loan(F, G, Qc, dt):
     return Phi, 0.5 * (Qd + Qd.T)
 
 
-def discretize_taylor(F, G, Qc, dt):
+def discretize_taylor(
+    F: Float[ArrayLike, "n n"],
+    G: Float[ArrayLike, "n q"],
+    Qc: Float[ArrayLike, "q q"],
+    dt: Float[ArrayLike, ""],
+) -> tuple[Float[Array, "n n"], Float[Array, "n n"]]:
     """Second-order transition and trapezoidal noise: Phi = I + F dt + (F dt)^2 / 2,
     Qd = (Phi G Qc G^T Phi^T + G Qc G^T) dt / 2.
 
@@ -52,7 +63,12 @@ def discretize_taylor(F, G, Qc, dt):
     return Phi, 0.5 * (Qd + Qd.T)
 
 
-def predict(x, P, Phi, Qd):
+def predict(
+    x: Float[ArrayLike, " n"],
+    P: Float[ArrayLike, "n n"],
+    Phi: Float[ArrayLike, "n n"],
+    Qd: Float[ArrayLike, "n n"],
+) -> tuple[Float[ArrayLike, " n"], Float[ArrayLike, "n n"]]:
     """Time update: x <- Phi x, P <- Phi P Phi^T + Qd (symmetrised)."""
     P_new = Phi @ P @ Phi.T + Qd
     return Phi @ x, 0.5 * (P_new + P_new.T)
@@ -61,20 +77,28 @@ def predict(x, P, Phi, Qd):
 class UpdateResult(NamedTuple):
     """Outcome of a masked update. Row-wise arrays have the measurement's length."""
 
-    x: jnp.ndarray
-    P: jnp.ndarray
-    innovation: jnp.ndarray  # y - H x_prior (all rows, used or not)
-    innovation_var: jnp.ndarray  # diag(H P H^T + R) (all rows)
-    used: jnp.ndarray  # rows that entered the update (mask and not gated)
-    gated: jnp.ndarray  # rows that were offered (mask true) but rejected by the gate
-    nis: jnp.ndarray  # normalised innovation squared of the used rows
-    dof: jnp.ndarray  # number of used rows
+    x: Float[Array, " n"]
+    P: Float[Array, "n n"]
+    innovation: Float[Array, " m"]  # y - H x_prior (all rows, used or not)
+    innovation_var: Float[Array, " m"]  # diag(H P H^T + R) (all rows)
+    used: Bool[Array, " m"]  # rows that entered the update (mask and not gated)
+    gated: Bool[Array, " m"]  # rows that were offered (mask true) but rejected by the gate
+    nis: Float[Array, ""]  # normalised innovation squared of the used rows
+    dof: Int[Array, ""]  # number of used rows
 
 
 # Functions called on host arrays (tests, post-processing) are jitted: one compiled kernel per
 # argument shape instead of one per primitive (inside another jit they are inlined).
 @jax.jit
-def masked_update(x, P, y, H, R, mask, gate=jnp.inf):
+def masked_update(
+    x: Float[Array, " n"],
+    P: Float[Array, "n n"],
+    y: Float[Array, " m"],
+    H: Float[Array, "m n"],
+    R: Float[Array, "m m"],
+    mask: Bool[Array, " m"],
+    gate: Float[ArrayLike, ""] = jnp.inf,
+) -> UpdateResult:
     """Joseph-form update with masked, chi-square-gated rows.
 
     nu = y - H x, S = H P H^T + R; row i is gated when nu_i^2 > gate * S_ii. With the used rows
@@ -118,7 +142,13 @@ def masked_update(x, P, y, H, R, mask, gate=jnp.inf):
 
 
 @jax.jit
-def normalized_residuals(x, P, y, H, R):
+def normalized_residuals(
+    x: Float[Array, " n"],
+    P: Float[Array, "n n"],
+    y: Float[Array, " m"],
+    H: Float[Array, "m n"],
+    R: Float[Array, "m m"],
+) -> Float[Array, " m"]:
     """Normalised residuals nu_i / sqrt(C_ii), C = H P H^T + R (S002's post-fit test uses P+)."""
     nu = y - H @ x
     C = H @ P @ H.T + R
@@ -126,7 +156,12 @@ def normalized_residuals(x, P, y, H, R):
 
 
 @jax.jit
-def reset_states(x, P, reset, variance):
+def reset_states(
+    x: Float[Array, " n"],
+    P: Float[Array, "n n"],
+    reset: Bool[Array, " n"],
+    variance: Float[Array, " n"],
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """Re-initialise the states flagged in ``reset``: x_i = 0, row/column i of P cleared and
     P_ii = variance_i. Used for per-slot ambiguities/ionosphere when a satellite rises or slips.
     """

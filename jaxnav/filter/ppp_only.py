@@ -30,6 +30,7 @@ from typing import NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxnav import geodesy
 from jaxnav.core.states import StateLayout
@@ -47,11 +48,11 @@ POS_VEL_LAYOUT = StateLayout((("pos", 3), ("vel", 3)))
 class GnssNav(NamedTuple):
     """Navigation state of a GNSS-only receiver."""
 
-    llh: jnp.ndarray  # [3] lat rad, lon rad, h m
-    vel_enu: jnp.ndarray  # [3] m/s (zero and unused for the position-only models)
+    llh: Float[Array, "3"]  # lat rad, lon rad, h m
+    vel_enu: Float[Array, "3"]  # m/s (zero and unused for the position-only models)
 
 
-def dummy_samples(n_epochs: int, per_epoch: int = 1):
+def dummy_samples(n_epochs: int, per_epoch: int = 1) -> Float[Array, "T K"]:
     """Per-epoch placeholder "samples" ([T, per_epoch] zeros) for ``EpochInput.samples``."""
     return jnp.zeros((n_epochs, per_epoch))
 
@@ -72,7 +73,9 @@ class GnssOnlySystem(AbstractNavSystem):
     def layout(self) -> StateLayout:
         return POS_VEL_LAYOUT if self.model == "constant_velocity" else POS_LAYOUT
 
-    def propagate(self, nav: GnssNav, sensors, samples, dt):
+    def propagate(
+        self, nav: GnssNav, sensors, samples, dt: Float[ArrayLike, ""]
+    ) -> tuple[GnssNav, Float[Array, "3"]]:
         """Static / random walk: the position is kept. Constant velocity: llh += D^-1 v T."""
         if self.model != "constant_velocity":
             return nav, jnp.zeros(3)
@@ -80,7 +83,9 @@ class GnssOnlySystem(AbstractNavSystem):
         llh = nav.llh + geodesy.llh_rate_matrix(nav.llh) @ nav.vel_enu * span
         return GnssNav(llh, nav.vel_enu), jnp.zeros(3)
 
-    def dynamics(self, nav: GnssNav, mean_inputs, sensors):
+    def dynamics(
+        self, nav: GnssNav, mean_inputs, sensors
+    ) -> tuple[Float[Array, "n n"], Float[Array, "n q"], Float[Array, "q q"]]:
         """Continuous (F, G, Qc). Position PSD q [m^2/s] -> (q / R_M^2, q / (R_N cos lat)^2, q).
 
         Constant velocity: d(dllh)/dt = D^-1 dv (the small d(D^-1 v)/dllh term neglected),
@@ -101,7 +106,7 @@ class GnssOnlySystem(AbstractNavSystem):
         Qc = jnp.diag(q / scale**2)
         return F, G, Qc
 
-    def antenna(self, nav: GnssNav, mean_inputs, sensors, layout_full: StateLayout):
+    def antenna(self, nav: GnssNav, mean_inputs, sensors, layout_full: StateLayout) -> Receiver:
         """Antenna = the estimated point; J_pos = d(ECEF)/d(llh) (S000 eq 4.66), J_vel = C_l^e."""
         n = layout_full.size
         C_l_e = geodesy.C_l_e(nav.llh[0], nav.llh[1])
@@ -115,7 +120,7 @@ class GnssOnlySystem(AbstractNavSystem):
             J_vel = J_vel.at[:, layout_full.sl("vel")].set(C_l_e)
         return Receiver(geodesy.llh_to_ecef(nav.llh), C_l_e @ nav.vel_enu, nav.llh, J_pos, J_vel)
 
-    def feedback(self, nav: GnssNav, sensors, dx, layout_full: StateLayout):
+    def feedback(self, nav: GnssNav, sensors, dx: Float[Array, " n"], layout_full: StateLayout):
         """Closed loop: llh <- llh - dx_pos, vel <- vel - dx_vel."""
         llh = nav.llh - dx[layout_full.sl("pos")]
         vel = nav.vel_enu
@@ -123,7 +128,7 @@ class GnssOnlySystem(AbstractNavSystem):
             vel = vel - dx[layout_full.sl("vel")]
         return GnssNav(llh, vel), sensors
 
-    def initial_std(self, nav: GnssNav, sig: NavSigmas):
+    def initial_std(self, nav: GnssNav, sig: NavSigmas) -> Float[Array, " n"]:
         std = jnp.zeros(self.layout.size)
         std = std.at[self.layout.sl("pos")].set(sig.pos_m / geodesy.metres_per_radian(nav.llh))
         if self.layout.has("vel"):
@@ -146,7 +151,9 @@ class GnssOnlySystem(AbstractNavSystem):
         return jnp.zeros(3)
 
 
-def initial_nav(pos_ecef, vel_enu=None) -> GnssNav:
+def initial_nav(
+    pos_ecef: Float[ArrayLike, "3"], vel_enu: Float[ArrayLike, "3"] | None = None
+) -> GnssNav:
     """A GnssNav at an ECEF position (e.g. a least-squares SPP solution)."""
     llh = geodesy.ecef_to_llh(jnp.asarray(pos_ecef, dtype=jnp.float64))
     vel = jnp.zeros(3) if vel_enu is None else jnp.asarray(vel_enu, dtype=jnp.float64)

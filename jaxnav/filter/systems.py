@@ -338,7 +338,7 @@ class InsSystem(AbstractNavSystem):
     """Full strapdown INS (ENU, quaternion) with the 15/21/27-state error model."""
 
     layout: StateLayout = eqx.field(static=True, default=INS15)
-    model: ins_errors.ImuErrorModel = None  # type: ignore[assignment]
+    model: ins_errors.ImuErrorModel | None = None
     lever_b: jax.Array = eqx.field(default_factory=lambda: jnp.zeros(3))
 
     def propagate(self, nav, sensors: ins_errors.SensorErrors, samples, dt):

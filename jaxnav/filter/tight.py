@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxnav import geodesy
 from jaxnav.core.states import StateLayout
@@ -57,26 +58,26 @@ class Carry(NamedTuple):
 
     nav: Any  # system navigation state
     sensors: Any  # system sensor-error estimates
-    gnss_est: jnp.ndarray  # [n] totals of the GNSS states (other entries unused)
-    P: jnp.ndarray  # [n, n] error covariance
+    gnss_est: Float[Array, " n"]  # totals of the GNSS states (other entries unused)
+    P: Float[Array, "n n"]  # error covariance
     hatch: ppp.HatchState
-    tracked: jnp.ndarray  # [S] bool: slot used (phase continuous) at the previous epoch
-    elevation: jnp.ndarray  # [S] previous elevations (for the ionosphere random walk)
+    tracked: Bool[Array, " S"]  # slot used (phase continuous) at the previous epoch
+    elevation: Float[Array, " S"]  # previous elevations (for the ionosphere random walk)
 
 
 class EpochOutput(NamedTuple):
     """Per-epoch solution and diagnostics."""
 
-    llh: jnp.ndarray  # [3] navigation (IMU) position
-    vel_enu: jnp.ndarray  # [3]
-    euler: jnp.ndarray  # [3] roll, pitch, azimuth
-    P_nav: jnp.ndarray  # [k, k] covariance of the navigation block (pos, vel, attitude)
-    nis: jnp.ndarray  # normalised innovation squared of the used rows
-    dof: jnp.ndarray  # number of used rows
-    n_sat: jnp.ndarray  # slots with at least one used row
-    used_by_kind: jnp.ndarray  # [4] used rows per kind (code, phase, Doppler, ionosphere)
-    gated_by_kind: jnp.ndarray  # [4] offered rows rejected by the gates / outlier tests
-    clock_bias_m: jnp.ndarray
+    llh: Float[Array, "3"]  # navigation (IMU) position
+    vel_enu: Float[Array, "3"]
+    euler: Float[Array, "3"]  # roll, pitch, azimuth
+    P_nav: Float[Array, "k k"]  # covariance of the navigation block (pos, vel, attitude)
+    nis: Float[Array, ""]  # normalised innovation squared of the used rows
+    dof: Int[Array, ""]  # number of used rows
+    n_sat: Int[Array, ""]  # slots with at least one used row
+    used_by_kind: Int[Array, "4"]  # used rows per kind (code, phase, Doppler, ionosphere)
+    gated_by_kind: Int[Array, "4"]  # offered rows rejected by the gates / outlier tests
+    clock_bias_m: Float[ArrayLike, ""]
 
 
 def nav_block_size(layout: StateLayout) -> int:
@@ -87,7 +88,7 @@ def nav_block_size(layout: StateLayout) -> int:
 
 def initial_carry(
     tf: TightFilter, nav0, obs0: ppp.GnssObs, sigmas: NavSigmas | None = None, sensors0=None
-):
+) -> Carry:
     """Start from a navigation state (e.g. GNSS-initialised) and the first epoch's code.
 
     The receiver clock starts at the median code residual (0 if the epoch has no code: the
@@ -128,7 +129,9 @@ def initial_carry(
     )
 
 
-def _propagate_covariance(tf: TightFilter, layout, carry: Carry, nav, mean_inputs):
+def _propagate_covariance(
+    tf: TightFilter, layout: StateLayout, carry: Carry, nav, mean_inputs
+) -> Float[Array, "n n"]:
     """P <- Phi P Phi^T + Qd for the joint navigation + GNSS error model over one epoch."""
     n_sys = tf.system.layout.size
     n = layout.size
@@ -145,14 +148,24 @@ def _propagate_covariance(tf: TightFilter, layout, carry: Carry, nav, mean_input
     return P
 
 
-def _slot_usable(tf: TightFilter, rx: ppp.Receiver, obs: ppp.GnssObs, keep):
+def _slot_usable(
+    tf: TightFilter, rx: ppp.Receiver, obs: ppp.GnssObs, keep: Bool[Array, " S"]
+) -> tuple[Bool[Array, " S"], Float[Array, " S"]]:
     geo = models.geometry(rx.pos_ecef, rx.vel_ecef, obs.sat)
     C_e_l = geodesy.C_l_e(rx.llh[0], rx.llh[1]).T
     el, _ = models.elevation_azimuth(geo.los_ecef, C_e_l)
     return obs.available & keep & (el >= tf.cfg.elevation_mask_rad), el
 
 
-def _reset_slots(tf: TightFilter, layout, gnss_est, P, obs: ppp.GnssObs, restart, el):
+def _reset_slots(
+    tf: TightFilter,
+    layout: StateLayout,
+    gnss_est: Float[Array, " n"],
+    P: Float[Array, "n n"],
+    obs: ppp.GnssObs,
+    restart: Bool[Array, " S"],
+    el: Float[Array, " S"],
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """Re-initialise the mode's per-slot states (ambiguities, slant ionosphere) of restarted
     slots: variances from the mode's ``reset_variance`` or the initial ones, values from its
     ``reset_values`` (e.g. an ambiguity from phase minus code)."""
@@ -169,7 +182,7 @@ def _reset_slots(tf: TightFilter, layout, gnss_est, P, obs: ppp.GnssObs, restart
 MIN_PREFIT_SATELLITES = 4
 
 
-def _prefit_mask(cfg: ppp.PppConfig, rows: ppp.Rows):
+def _prefit_mask(cfg: ppp.PppConfig, rows: ppp.Rows) -> Bool[Array, " m"]:
     """Coarse pre-fit test on code rows: |dz - median(dz_code)| <= prefit_code_m (S002: 20 m).
 
     Lock-out guard (chosen): when the test would leave fewer than ``MIN_PREFIT_SATELLITES`` of
@@ -189,7 +202,13 @@ def _prefit_mask(cfg: ppp.PppConfig, rows: ppp.Rows):
     return rows.mask & ~(bad_slot[rows.slot] & ~lockout)
 
 
-def _clock_jump(cfg: ppp.PppConfig, layout: StateLayout, gnss_est, P, rows: ppp.Rows):
+def _clock_jump(
+    cfg: ppp.PppConfig,
+    layout: StateLayout,
+    gnss_est: Float[Array, " n"],
+    P: Float[Array, "n n"],
+    rows: ppp.Rows,
+) -> tuple[Float[Array, " n"], Float[Array, "n n"], ppp.Rows]:
     """Re-level the receiver clock when every code residual moved together by more than the
     pre-fit threshold (a millisecond clock jump, or a first epoch without data): the clock
     estimate takes the median code residual and its variance restarts, so the innovation gate
@@ -210,7 +229,9 @@ def _clock_jump(cfg: ppp.PppConfig, layout: StateLayout, gnss_est, P, rows: ppp.
     return gnss_est, jnp.where(jump != 0.0, P_reset, P), rows._replace(dz=dz)
 
 
-def _update_with_postfit(cfg: ppp.PppConfig, P, rows: ppp.Rows, mask):
+def _update_with_postfit(
+    cfg: ppp.PppConfig, P: Float[Array, "n n"], rows: ppp.Rows, mask: Bool[Array, " m"]
+) -> ekf.UpdateResult:
     """Masked update; if the worst normalised post-fit residual exceeds the threshold, drop it
     (for a code row: every code row of its satellite) and update again from the same prior.
     The satellite's phase stays: dropping it would restart a converged ambiguity."""
@@ -234,7 +255,9 @@ def _update_with_postfit(cfg: ppp.PppConfig, P, rows: ppp.Rows, mask):
     return jax.tree.map(lambda a, b: jnp.where(reject, b, a), first, second)
 
 
-def _nhc_update(tf: TightFilter, layout: StateLayout, nav, res: ekf.UpdateResult):
+def _nhc_update(
+    tf: TightFilter, layout: StateLayout, nav, res: ekf.UpdateResult
+) -> ekf.UpdateResult:
     """Sequential NHC update (module docstring) of the GNSS update's (x, P); the GNSS
     diagnostics (used rows, NIS, dof) are kept. The body rate at t_k is the last compensated
     sample's (as in ``loose``); the IMU is taken to be at the vehicle's no-slip point."""
@@ -249,7 +272,7 @@ def _nhc_update(tf: TightFilter, layout: StateLayout, nav, res: ekf.UpdateResult
     return res._replace(x=upd.x, P=upd.P)
 
 
-def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput):
+def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, EpochOutput]:
     """One GNSS epoch: mechanize, propagate P, reset per-slot states, update, feed back."""
     layout = tf.layout
     cfg = tf.cfg
@@ -308,6 +331,6 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput):
     return new, out
 
 
-def run(tf: TightFilter, carry: Carry, inputs: EpochInput):
+def run(tf: TightFilter, carry: Carry, inputs: EpochInput) -> tuple[Carry, EpochOutput]:
     """Scan ``epoch_step`` over stacked epochs; returns (final carry, stacked EpochOutput)."""
     return jax.lax.scan(lambda c, i: epoch_step(tf, c, i), carry, inputs)

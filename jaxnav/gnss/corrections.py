@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Real
 
 from jaxnav import geodesy
 from jaxnav.geodesy import C_LIGHT, OMEGA_E
@@ -120,7 +121,12 @@ def _niell_coefficients(abs_lat_deg):
     return table[i] * (1.0 - w)[..., None] + table[i + 1] * w[..., None]
 
 
-def niell_mapping(el_rad, lat_rad, h_m, day_of_year):
+def niell_mapping(
+    el_rad: Float[ArrayLike, "*#S"],
+    lat_rad: Float[ArrayLike, "*#S"],
+    h_m: Float[ArrayLike, "*#S"],
+    day_of_year: Real[ArrayLike, "*#S"],
+) -> tuple[Float[Array, "*#S"], Float[Array, "*#S"]]:
     """Niell (1996) hydrostatic and wet mapping functions (m_h, m_w).
 
     m_h = M(E; a_h, b_h, c_h) + (1/sin E - M(E; a_ht, b_ht, c_ht)) h[km], with
@@ -140,7 +146,13 @@ def niell_mapping(el_rad, lat_rad, h_m, day_of_year):
     return m_h, m_w
 
 
-def tropo_slant_delay_m(el_rad, lat_rad, h_m, day_of_year, zwd_m=None):
+def tropo_slant_delay_m(
+    el_rad: Float[ArrayLike, "*#S"],
+    lat_rad: Float[ArrayLike, "*#S"],
+    h_m: Float[ArrayLike, "*#S"],
+    day_of_year: Real[ArrayLike, "*#S"],
+    zwd_m: Float[ArrayLike, "*#S"] | None = None,
+) -> Float[Array, "*#S"]:
     """Slant troposphere T = m_h(E) Z_h + m_w(E) Z_w (S002 eq 2.2 without gradients).
 
     Z_h from :func:`saastamoinen_zhd_m` (Berg pressure); Z_w defaults to
@@ -181,7 +193,13 @@ def _semicircles(x_rad):
     return x_rad / jnp.pi
 
 
-def klobuchar_vertical_delay_s(lat_rad, lon_rad, t_gps_sow, alpha=None, beta=None):
+def klobuchar_vertical_delay_s(
+    lat_rad: Float[ArrayLike, "*#S"],
+    lon_rad: Float[ArrayLike, "*#S"],
+    t_gps_sow: Real[ArrayLike, "*#S"],
+    alpha: Float[ArrayLike, "4"] | tuple[float, ...] | None = None,
+    beta: Float[ArrayLike, "4"] | tuple[float, ...] | None = None,
+) -> Float[Array, "*#S"]:
     """Klobuchar vertical L1 delay [s] at an ionospheric point (IS-GPS-200 20.3.3.5.2.5).
 
     With phi_m = phi + 0.064 cos(lambda - 1.617) (geomagnetic latitude, semicircles), local time
@@ -203,7 +221,15 @@ def klobuchar_vertical_delay_s(lat_rad, lon_rad, t_gps_sow, alpha=None, beta=Non
     return jnp.where(jnp.abs(x) < 1.57, day, 5e-9)
 
 
-def klobuchar_delay_s(lat_rad, lon_rad, az_rad, el_rad, t_gps_sow, alpha=None, beta=None):
+def klobuchar_delay_s(
+    lat_rad: Float[ArrayLike, "*#S"],
+    lon_rad: Float[ArrayLike, "*#S"],
+    az_rad: Float[ArrayLike, "*#S"],
+    el_rad: Float[ArrayLike, "*#S"],
+    t_gps_sow: Real[ArrayLike, "*#S"],
+    alpha: Float[ArrayLike, "4"] | tuple[float, ...] | None = None,
+    beta: Float[ArrayLike, "4"] | tuple[float, ...] | None = None,
+) -> Float[Array, "*#S"]:
     """Klobuchar slant L1 (1575.42 MHz) group delay [s] (IS-GPS-200 20.3.3.5.2.5).
 
     Pierce point (semicircles): psi = 0.0137/(E + 0.11) - 0.022,
@@ -224,8 +250,13 @@ def klobuchar_delay_s(lat_rad, lon_rad, az_rad, el_rad, t_gps_sow, alpha=None, b
 
 
 def ionosphere_pierce_point(
-    lat_rad, lon_rad, az_rad, el_rad, shell_height_m=IONO_SHELL_HEIGHT_M, radius_m=None
-):
+    lat_rad: Float[ArrayLike, "*#S"],
+    lon_rad: Float[ArrayLike, "*#S"],
+    az_rad: Float[ArrayLike, "*#S"],
+    el_rad: Float[ArrayLike, "*#S"],
+    shell_height_m: Float[ArrayLike, ""] = IONO_SHELL_HEIGHT_M,
+    radius_m: Float[ArrayLike, ""] | None = None,
+) -> tuple[Float[Array, "*#S"], Float[Array, "*#S"]]:
     """Thin-shell pierce point (lat, lon) [rad] on a sphere of radius R + H.
 
     sin z' = R cos E / (R + H); Earth-central angle psi = pi/2 - E - z';
@@ -243,7 +274,11 @@ def ionosphere_pierce_point(
     return lat_p, lon_p
 
 
-def thin_shell_mapping(el_rad, shell_height_m=IONO_SHELL_HEIGHT_M, radius_m=None):
+def thin_shell_mapping(
+    el_rad: Float[ArrayLike, "*S"],
+    shell_height_m: Float[ArrayLike, ""] = IONO_SHELL_HEIGHT_M,
+    radius_m: Float[ArrayLike, ""] | None = None,
+) -> Float[Array, "*S"]:
     """Single-layer slant/vertical factor M = 1 / sqrt(1 - (R cos E / (R + H))^2) = 1 / cos z'."""
     r = IONO_EARTH_RADIUS_M if radius_m is None else radius_m
     s = r * jnp.cos(el_rad) / (r + shell_height_m)
@@ -255,14 +290,22 @@ def thin_shell_mapping(el_rad, shell_height_m=IONO_SHELL_HEIGHT_M, radius_m=None
 # ------------------------------------------------------------------------------------------------
 
 
-def los_enu(pos_rcv_ecef, pos_sat_ecef, llh_rcv=None):
+def los_enu(
+    pos_rcv_ecef: Float[ArrayLike, "3"],
+    pos_sat_ecef: Float[ArrayLike, "*S 3"],
+    llh_rcv: Float[ArrayLike, "3"] | None = None,
+) -> Float[Array, "*S 3"]:
     """Receiver -> satellite vectors in the receiver's ENU frame, shape [..., 3] (unnormalised)."""
     llh = geodesy.ecef_to_llh(pos_rcv_ecef) if llh_rcv is None else llh_rcv
     d = pos_sat_ecef - pos_rcv_ecef
     return d @ geodesy.C_l_e(llh[0], llh[1])  # row-vector form of C_e_l d
 
 
-def elevation_azimuth(pos_rcv_ecef, pos_sat_ecef, llh_rcv=None):
+def elevation_azimuth(
+    pos_rcv_ecef: Float[ArrayLike, "3"],
+    pos_sat_ecef: Float[ArrayLike, "*S 3"],
+    llh_rcv: Float[ArrayLike, "3"] | None = None,
+) -> tuple[Float[Array, "*S"], Float[Array, "*S"]]:
     """Elevation E = asin(u_up) and azimuth A = atan2(u_east, u_north) in [0, 2 pi) [rad].
 
     ``pos_sat_ecef`` may be [..., 3] for many satellites; ``llh_rcv`` (lat, lon, h) saves the
@@ -275,7 +318,9 @@ def elevation_azimuth(pos_rcv_ecef, pos_sat_ecef, llh_rcv=None):
     return el, az
 
 
-def earth_rotation_correct(vec_ecef, tau_s):
+def earth_rotation_correct(
+    vec_ecef: Float[ArrayLike, "*S 3"], tau_s: Float[ArrayLike, "*#S"]
+) -> Float[Array, "*S 3"]:
     """Express a transmit-time ECEF vector in the receive-time ECEF frame: R3(we tau) v.
 
     R3(theta) v = [c x + s y, -s x + c y, z], theta = we tau (the Earth turns by theta while the
@@ -287,7 +332,9 @@ def earth_rotation_correct(vec_ecef, tau_s):
     return jnp.stack([c * x + s * y, -s * x + c * y, z], axis=-1)
 
 
-def sagnac_range_correction_m(pos_rcv_ecef, pos_sat_ecef):
+def sagnac_range_correction_m(
+    pos_rcv_ecef: Float[ArrayLike, "*#S 3"], pos_sat_ecef: Float[ArrayLike, "*#S 3"]
+):
     """First-order Sagnac term we (x_s y_r - y_s x_r) / c [m] added to |r_s - r_r| (S000 2.43)."""
     return (
         OMEGA_E
@@ -299,7 +346,11 @@ def sagnac_range_correction_m(pos_rcv_ecef, pos_sat_ecef):
     )
 
 
-def geometric_range_m(pos_rcv_ecef, pos_sat_tx_ecef, n_iter=2):
+def geometric_range_m(
+    pos_rcv_ecef: Float[ArrayLike, "*#S 3"],
+    pos_sat_tx_ecef: Float[ArrayLike, "*#S 3"],
+    n_iter: int = 2,
+) -> tuple[Float[Array, "*#S"], Float[Array, "*#S 3"]]:
     """Range |R3(we tau) r_s - r_r| with tau = range / c iterated; returns (range, rotated r_s).
 
     ``pos_sat_tx_ecef`` is the satellite at transmission in the ECEF frame of that instant (what
@@ -313,7 +364,9 @@ def geometric_range_m(pos_rcv_ecef, pos_sat_tx_ecef, n_iter=2):
     return rho, rot
 
 
-def relativistic_clock_s(pos_sat_ecef, vel_sat_ecef):
+def relativistic_clock_s(
+    pos_sat_ecef: Float[ArrayLike, "*#S 3"], vel_sat_ecef: Float[ArrayLike, "*#S 3"]
+) -> Float[Array, "*#S"]:
     """Periodic relativistic satellite clock term dt_rel = -2 r . v / c^2 [s] (IS-GPS-200).
 
     Added to the satellite clock of precise products (which exclude it); equals

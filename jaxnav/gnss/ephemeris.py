@@ -24,6 +24,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Real
 
 from jaxnav.geodesy import OMEGA_E
 from jaxnav.gnss.signals import SYS_GAL, SYS_GLO
@@ -41,11 +42,11 @@ GLO_A_M = 25510.0e3  # GLONASS ICD nominal (19 100 km altitude)
 class SatState(NamedTuple):
     """Satellite state per satellite at the evaluation times (leading axis = satellites)."""
 
-    pos_ecef: jnp.ndarray  # [n, 3] m, ECEF frame of the evaluation instant
-    vel_ecef: jnp.ndarray  # [n, 3] m/s, in that rotating frame
-    clock_s: jnp.ndarray  # [n] clock polynomial dt^s (no periodic relativity, see module doc)
-    clock_rate_s_s: jnp.ndarray  # [n]
-    ok: jnp.ndarray  # [n] bool: a usable (healthy, recent) record was found
+    pos_ecef: Float[Array, "n 3"]  # m, ECEF frame of the evaluation instant
+    vel_ecef: Float[Array, "n 3"]  # m/s, in that rotating frame
+    clock_s: Float[Array, " n"]  # clock polynomial dt^s (no periodic relativity, see module doc)
+    clock_rate_s_s: Float[Array, " n"]
+    ok: Bool[Array, " n"]  # a usable (healthy, recent) record was found
 
 
 class KeplerRecords(NamedTuple):
@@ -212,7 +213,9 @@ def _glonass_clock(g: GlonassRecords, t):
     return g.clock_bias_s + g.rel_freq_bias * (t - g.tb_s)
 
 
-def broadcast_position_clock(eph: BroadcastEphemeris, t):
+def broadcast_position_clock(
+    eph: BroadcastEphemeris, t: Float[Array, " n"]
+) -> tuple[Float[Array, "n 3"], Float[Array, " n"], Bool[Array, " n"]]:
     """Position [n, 3], clock [n], ok [n] at times t [n] (seconds on the source axis)."""
     # Galileo fits are forward-looking: centre their window on toe + 1 h (GALILEO_FIT_CENTRE_S).
     centre = jnp.where(eph.system == SYS_GAL, GALILEO_FIT_CENTRE_S, 0.0)
@@ -226,7 +229,9 @@ def broadcast_position_clock(eph: BroadcastEphemeris, t):
     return pos, clock, jnp.where(is_glo, ok_g, ok_k)
 
 
-def state_from_position_clock(position_clock, n: int, t_s) -> SatState:
+def state_from_position_clock(
+    position_clock, n: int, t_s: Real[ArrayLike, ""] | Real[ArrayLike, " n"]
+) -> SatState:
     """SatState of ``n`` satellites at t_s from ``position_clock(t [n]) -> (pos, clock, ok)``:
     velocity and clock rate are its exact time derivatives (forward-mode autodiff, jax.jvp)."""
     t = jnp.broadcast_to(jnp.asarray(t_s, dtype=jnp.float64), (n,))
@@ -239,7 +244,9 @@ def state_from_position_clock(position_clock, n: int, t_s) -> SatState:
     return SatState(pos, vel, clock, rate, ok)
 
 
-def satellite_state(eph: BroadcastEphemeris, t_s) -> SatState:
+def satellite_state(
+    eph: BroadcastEphemeris, t_s: Real[ArrayLike, ""] | Real[ArrayLike, " n"]
+) -> SatState:
     """Position, velocity and clock of every satellite of ``eph`` at t_s (source time axis);
     ``t_s`` a scalar or one time per satellite [n]. Pure and jit/vmap-able. ``clock_s`` excludes
     the periodic relativistic term (module docstring)."""

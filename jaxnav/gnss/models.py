@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from jaxnav.geodesy import C_LIGHT
 from jaxnav.gnss import corrections
@@ -26,23 +27,25 @@ class SatEpoch(NamedTuple):
     time is applied by :func:`geometry`. Clocks are c * dt^s [m] and its rate [m/s].
     """
 
-    pos_ecef: jnp.ndarray  # [S, 3]
-    vel_ecef: jnp.ndarray  # [S, 3]
-    clock_m: jnp.ndarray  # [S]
-    clock_rate_m_s: jnp.ndarray  # [S]
+    pos_ecef: Float[Array, "S 3"]
+    vel_ecef: Float[Array, "S 3"]
+    clock_m: Float[Array, " S"]
+    clock_rate_m_s: Float[Array, " S"]
 
 
 class Geometry(NamedTuple):
     """Receiver-satellite geometry per slot."""
 
-    range_m: jnp.ndarray  # [S] geometric range including the Earth-rotation (Sagnac) term
-    los_ecef: jnp.ndarray  # [S, 3] unit vector receiver -> satellite
-    range_rate_m_s: jnp.ndarray  # [S] d(range)/dt
-    sat_pos_ecef: jnp.ndarray  # [S, 3] satellite position rotated into the reception frame
-    sat_vel_ecef: jnp.ndarray  # [S, 3]
+    range_m: Float[Array, " S"]  # geometric range including the Earth-rotation (Sagnac) term
+    los_ecef: Float[Array, "S 3"]  # unit vector receiver -> satellite
+    range_rate_m_s: Float[Array, " S"]  # d(range)/dt
+    sat_pos_ecef: Float[Array, "S 3"]  # satellite position rotated into the reception frame
+    sat_vel_ecef: Float[Array, "S 3"]
 
 
-def geometry(rx_pos_ecef, rx_vel_ecef, sat: SatEpoch) -> Geometry:
+def geometry(
+    rx_pos_ecef: Float[ArrayLike, "3"], rx_vel_ecef: Float[ArrayLike, "3"], sat: SatEpoch
+) -> Geometry:
     """Range and range rate with Earth rotation during the travel time tau = rho / c.
 
     r_s' = R3(w_e tau) r_s (corrections.geometric_range_m), rho = |r_s' - r_r|,
@@ -55,7 +58,9 @@ def geometry(rx_pos_ecef, rx_vel_ecef, sat: SatEpoch) -> Geometry:
     return Geometry(rho, los, rate, pos_s, vel_s)
 
 
-def elevation_azimuth(los_ecef, C_e_l):
+def elevation_azimuth(
+    los_ecef: Float[Array, "S 3"], C_e_l: Float[Array, "3 3"]
+) -> tuple[Float[Array, " S"], Float[Array, " S"]]:
     """Elevation and azimuth [rad] of unit line-of-sight vectors, given C_e_l = (C_l^e)^T."""
     los_enu = los_ecef @ C_e_l.T
     el = jnp.arcsin(jnp.clip(los_enu[:, 2], -1.0, 1.0))
@@ -63,7 +68,7 @@ def elevation_azimuth(los_ecef, C_e_l):
     return el, az
 
 
-def range_jacobian(geo: Geometry):
+def range_jacobian(geo: Geometry) -> Float[Array, "S 3"]:
     """d(range)/d(r_rx) = -u^T, one row per slot ([S, 3]).
 
     The same rows give d(range_rate)/d(v_rx); the position dependence of the range rate through
@@ -75,10 +80,10 @@ def range_jacobian(geo: Geometry):
 class ModelTerms(NamedTuple):
     """Everything a code/phase/Doppler prediction adds to the geometry, per slot [m] or [m/s]."""
 
-    clock_m: jnp.ndarray  # receiver clock (+ inter-system bias) minus satellite clock
-    trop_m: jnp.ndarray  # slant troposphere (a-priori + estimated wet part)
-    iono_l1_m: jnp.ndarray  # L1 slant ionosphere used by the model (0 for IF combinations)
-    clock_rate_m_s: jnp.ndarray  # receiver clock drift minus satellite clock rate
+    clock_m: Float[Array, " S"]  # receiver clock (+ inter-system bias) minus satellite clock
+    trop_m: Float[Array, " S"]  # slant troposphere (a-priori + estimated wet part)
+    iono_l1_m: Float[Array, " S"]  # L1 slant ionosphere used by the model (0 for IF combinations)
+    clock_rate_m_s: Float[Array, " S"]  # receiver clock drift minus satellite clock rate
 
 
 def predict_code(geo: Geometry, terms: ModelTerms, iono_scale):
@@ -96,13 +101,15 @@ def predict_range_rate(geo: Geometry, terms: ModelTerms):
     return geo.range_rate_m_s + terms.clock_rate_m_s
 
 
-def elevation_sigma(sigma_zenith, elevation_rad):
+def elevation_sigma(
+    sigma_zenith: Float[ArrayLike, ""], elevation_rad: Float[ArrayLike, "*S"]
+) -> Float[Array, "*S"]:
     """S001 eq 11 [recon]: sigma = sigma0 above 30 deg, sigma0 / (2 sin E) below (continuous)."""
     s = jnp.sin(jnp.maximum(elevation_rad, 1e-3))
     return jnp.where(elevation_rad >= jnp.pi / 6, sigma_zenith, sigma_zenith / (2.0 * s))
 
 
-def single_difference_matrix(n_slots, ref_slot):
+def single_difference_matrix(n_slots: int, ref_slot: Int[ArrayLike, ""]) -> Float[Array, "S S"]:
     """Between-satellite differencing D = I - e_ref 1^T restricted to rows != ref (S004, S002 2.39).
 
     Returned square ([S, S]) with the reference row zeroed, so fixed shapes survive: the caller

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from jaxnav import geodesy
 from jaxnav.core.states import StateLayout
@@ -151,7 +152,9 @@ def gnss_blocks(cfg: PppConfig, have_clock: bool = False) -> tuple[tuple[str, in
     return tuple(blocks)
 
 
-def gnss_dynamics(cfg: PppConfig, layout: StateLayout, elevation_rad, skip=()):
+def gnss_dynamics(
+    cfg: PppConfig, layout: StateLayout, elevation_rad: Float[Array, " S"], skip=()
+) -> tuple[Float[Array, "n n"], Float[Array, " n"]]:
     """Continuous F and diagonal process-noise PSD q (n-vector) of the GNSS blocks in ``layout``.
 
     Clock: bias' = drift, PSDs of S001 eq 16; ISB and ZWD: random walks; the mode's blocks as
@@ -175,7 +178,7 @@ def gnss_dynamics(cfg: PppConfig, layout: StateLayout, elevation_rad, skip=()):
     return F, q
 
 
-def gnss_initial_std(cfg: PppConfig, layout: StateLayout):
+def gnss_initial_std(cfg: PppConfig, layout: StateLayout) -> Float[Array, " n"]:
     """Initial standard deviations of the GNSS blocks (zeros elsewhere)."""
     std = jnp.zeros(layout.size)
     init = {
@@ -192,7 +195,9 @@ def gnss_initial_std(cfg: PppConfig, layout: StateLayout):
     return std
 
 
-def slot_state_resets(cfg: PppConfig, layout: StateLayout, reset_slot, variances=None):
+def slot_state_resets(
+    cfg: PppConfig, layout: StateLayout, reset_slot: Bool[Array, " S"], variances=None
+) -> tuple[Bool[Array, " n"], Float[Array, " n"]]:
     """Per-state reset flags and variances for slots that rose, slipped or returned ([S] bool).
 
     The variances are the initial ones of ``gnss_initial_std`` on the mode's per-slot blocks,
@@ -222,7 +227,13 @@ def _reference_slot(slots: SlotInfo, elevation, usable):
     return jnp.argmax(score)
 
 
-def _difference(dz, H, var, mask, ref):
+def _difference(
+    dz: Float[Array, " S"],
+    H: Float[Array, "S n"],
+    var: Float[Array, " S"],
+    mask: Bool[Array, " S"],
+    ref: Int[Array, ""],
+) -> tuple[Float[Array, " S"], Float[Array, "S n"], Float[Array, "S S"], Bool[Array, " S"]]:
     """Between-satellite differences against slot ``ref``: D dz, D H, D diag(var) D^T."""
     S = dz.shape[0]
     D = models.single_difference_matrix(S, ref)
@@ -237,11 +248,11 @@ def measurement_rows(
     slots: SlotInfo,
     obs: GnssObs,
     rx: Receiver,
-    gnss_est,
-    outage_keep,
+    gnss_est: Float[Array, " n"],
+    outage_keep: Bool[Array, " S"],
     hatch: HatchState,
-    day_of_year,
-) -> tuple[Rows, jnp.ndarray]:
+    day_of_year: Real[ArrayLike, ""],
+) -> tuple[Rows, Float[Array, " S"]]:
     """All rows of the configured mode at one epoch, and the per-slot elevation [rad].
 
     ``outage_keep`` [S] bool is the study's availability mask (False = withheld). Rows of one

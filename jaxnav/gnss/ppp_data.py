@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, Real
 
 from jaxnav.gnss import models, signals
 
@@ -17,21 +18,21 @@ from jaxnav.gnss import models, signals
 class SlotInfo(NamedTuple):
     """Static description of the satellite slots of a scenario (one entry per slot)."""
 
-    system: jnp.ndarray  # [S] int: signals.SYS_GPS / SYS_GLO / SYS_GAL
-    f1_hz: jnp.ndarray  # [S] first PPP frequency (GLONASS: FDMA channel dependent)
-    f2_hz: jnp.ndarray  # [S] second PPP frequency
+    system: Int[Array, " S"]  # signals.SYS_GPS / SYS_GLO / SYS_GAL
+    f1_hz: Float[Array, " S"]  # first PPP frequency (GLONASS: FDMA channel dependent)
+    f2_hz: Float[Array, " S"]  # second PPP frequency
 
 
 class GnssObs(NamedTuple):
     """One epoch of observations and products, per slot [S] (band index 0 = f1, 1 = f2)."""
 
-    code_m: jnp.ndarray  # [S, 2] pseudoranges (C1 or P1, P2) [m]
-    phase_m: jnp.ndarray  # [S, 2] carrier phase times wavelength [m]
-    range_rate_m_s: jnp.ndarray  # [S] f1 Doppler as range rate, -lambda1 * D_Hz [m/s]
-    available: jnp.ndarray  # [S] bool: all signals of the slot tracked this epoch
-    slip: jnp.ndarray  # [S] bool: loss of lock / cycle slip flagged this epoch
-    code_bias_m: jnp.ndarray  # [S, 2] known satellite code biases w.r.t. the clock datum [m]
-    iono_model_l1_m: jnp.ndarray  # [S] model (broadcast / GIM) slant f1 ionosphere [m]
+    code_m: Float[Array, "S 2"]  # pseudoranges (C1 or P1, P2) [m]
+    phase_m: Float[Array, "S 2"]  # carrier phase times wavelength [m]
+    range_rate_m_s: Float[Array, " S"]  # f1 Doppler as range rate, -lambda1 * D_Hz [m/s]
+    available: Bool[Array, " S"]  # all signals of the slot tracked this epoch
+    slip: Bool[Array, " S"]  # loss of lock / cycle slip flagged this epoch
+    code_bias_m: Float[Array, "S 2"]  # known satellite code biases w.r.t. the clock datum [m]
+    iono_model_l1_m: Float[Array, " S"]  # model (broadcast / GIM) slant f1 ionosphere [m]
     sat: models.SatEpoch
 
 
@@ -40,19 +41,19 @@ class EpochInput(NamedTuple):
 
     samples: Any  # system IMU/RISS samples over (t_{k-1}, t_k] ([K, ...])
     obs: GnssObs
-    keep: jnp.ndarray  # [S] bool: False withholds the slot (outage / availability policy)
-    day_of_year: jnp.ndarray  # scalar, for the mapping function
+    keep: Bool[Array, " S"]  # False withholds the slot (outage / availability policy)
+    day_of_year: Real[Array, ""]  # for the mapping function
 
 
 class Combos(NamedTuple):
     """Per-slot observation combinations shared by the row builders."""
 
-    alpha: jnp.ndarray  # [S] IF weight of f1
-    beta: jnp.ndarray  # [S] IF weight of f2 (alpha + beta = 1)
-    gamma: jnp.ndarray  # [S] (f1/f2)^2
-    code_if_m: jnp.ndarray  # [S]
-    phase_if_m: jnp.ndarray  # [S]
-    code_corr_m: jnp.ndarray  # [S, 2] bias-corrected raw codes
+    alpha: Float[Array, " S"]  # IF weight of f1
+    beta: Float[Array, " S"]  # IF weight of f2 (alpha + beta = 1)
+    gamma: Float[Array, " S"]  # (f1/f2)^2
+    code_if_m: Float[Array, " S"]
+    phase_if_m: Float[Array, " S"]
+    code_corr_m: Float[Array, "S 2"]  # bias-corrected raw codes
 
 
 def combos(slots: SlotInfo, obs: GnssObs) -> Combos:
@@ -72,12 +73,12 @@ def combos(slots: SlotInfo, obs: GnssObs) -> Combos:
 class HatchState(NamedTuple):
     """Per-slot carrier-smoothing memory (S000 eqs 4.48-4.59 as a recursive Hatch filter)."""
 
-    smoothed_m: jnp.ndarray  # [S] smoothed IF code
-    prev_phase_m: jnp.ndarray  # [S] IF phase at the previous epoch
-    count: jnp.ndarray  # [S] epochs in the current window (0 = restart)
+    smoothed_m: Float[Array, " S"]  # smoothed IF code
+    prev_phase_m: Float[Array, " S"]  # IF phase at the previous epoch
+    count: Float[Array, " S"]  # epochs in the current window (0 = restart)
 
     @classmethod
-    def empty(cls, n_slots):
+    def empty(cls, n_slots: int):
         z = jnp.zeros(n_slots)
         return cls(z, z, z)
 
@@ -85,22 +86,22 @@ class HatchState(NamedTuple):
 class Receiver(NamedTuple):
     """The antenna as the navigation system predicts it, with Jacobians w.r.t. the full dx."""
 
-    pos_ecef: jnp.ndarray  # [3]
-    vel_ecef: jnp.ndarray  # [3]
-    llh: jnp.ndarray  # [3]
-    J_pos: jnp.ndarray  # [3, n] d(pos_ecef)/d(dx)
-    J_vel: jnp.ndarray  # [3, n] d(vel_ecef)/d(dx)
+    pos_ecef: Float[Array, "3"]
+    vel_ecef: Float[Array, "3"]
+    llh: Float[Array, "3"]
+    J_pos: Float[Array, "3 n"]  # d(pos_ecef)/d(dx)
+    J_vel: Float[Array, "3 n"]  # d(vel_ecef)/d(dx)
 
 
 class Rows(NamedTuple):
     """Stacked measurement rows of one epoch: residual dz = h(x_hat) - z, H, R, mask."""
 
-    dz: jnp.ndarray  # [m]
-    H: jnp.ndarray  # [m, n]
-    R: jnp.ndarray  # [m, m]
-    mask: jnp.ndarray  # [m] bool
-    slot: jnp.ndarray  # [m] int: slot of each row (-1 for none)
-    kind: jnp.ndarray  # [m] int: 0 code, 1 phase, 2 Doppler, 3 ionosphere pseudo-observation
+    dz: Float[Array, " m"]
+    H: Float[Array, "m n"]
+    R: Float[Array, "m m"]
+    mask: Bool[Array, " m"]
+    slot: Int[Array, " m"]  # slot of each row (-1 for none)
+    kind: Int[Array, " m"]  # 0 code, 1 phase, 2 Doppler, 3 ionosphere pseudo-observation
 
 
 KIND_CODE, KIND_PHASE, KIND_DOPPLER, KIND_IONO = 0, 1, 2, 3

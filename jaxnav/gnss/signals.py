@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxnav.geodesy import C_LIGHT
 
@@ -94,7 +95,11 @@ PPP_BANDS = (0, 1)  # the dual-frequency PPP pair of every system
 DEFAULT_SLOTS_PER_SYSTEM = (16, 14, 14)
 
 
-def carrier_frequency_hz(system, band, glo_channel=0):
+def carrier_frequency_hz(
+    system: Int[ArrayLike, "*#S"],
+    band: Int[ArrayLike, "*#S"],
+    glo_channel: Int[ArrayLike, "*#S"] = 0,
+) -> Float[Array, "*#S"]:
     """Carrier frequency f = base(system, band) + k step(system, band) [Hz] (k: GLONASS channel)."""
     base = jnp.asarray(BAND_BASE_HZ)[system, band]
     step = jnp.asarray(BAND_STEP_HZ)[system, band]
@@ -153,7 +158,7 @@ def combination_noise_factor(alpha, beta):
     return jnp.sqrt(alpha**2 + beta**2)
 
 
-def if_integers(n1, n2):
+def if_integers(n1, n2) -> tuple[int, int]:
     """Coprime integers (i1, i2) with f1/f2 = i1/i2, from the band multipliers (numpy, static)."""
     g = math.gcd(int(n1), int(n2))
     return int(n1) // g, int(n2) // g
@@ -200,18 +205,24 @@ class SlotTable(NamedTuple):
     and ``occupied = False``.
     """
 
-    system: jnp.ndarray  # int32 SYS_*
-    prn: jnp.ndarray  # int32 PRN / slot number (0 = empty)
-    glo_channel: jnp.ndarray  # int32 FDMA channel k (0 for CDMA systems and empty slots)
-    occupied: jnp.ndarray  # bool
-    sat_index: jnp.ndarray  # int32 index into the orbit source
+    system: Int[Array, " S"]  # SYS_*
+    prn: Int[Array, " S"]  # PRN / slot number (0 = empty)
+    glo_channel: Int[Array, " S"]  # FDMA channel k (0 for CDMA systems and empty slots)
+    occupied: Bool[Array, " S"]
+    sat_index: Int[Array, " S"]  # index into the orbit source
 
     @property
     def n_slots(self) -> int:
         return int(self.system.shape[0])
 
 
-def assign_slots(system, prn, glo_channel, ever_visible, slots_per_system=DEFAULT_SLOTS_PER_SYSTEM):
+def assign_slots(
+    system: Int[ArrayLike, " n"],
+    prn: Int[ArrayLike, " n"],
+    glo_channel: Int[ArrayLike, " n"],
+    ever_visible: Bool[ArrayLike, " n"],
+    slots_per_system=DEFAULT_SLOTS_PER_SYSTEM,
+) -> SlotTable:
     """Build a :class:`SlotTable`: per system, the ever-visible satellites in PRN order, padded.
 
     ``system``, ``prn``, ``glo_channel``, ``ever_visible`` are per-satellite arrays of the orbit
@@ -247,14 +258,14 @@ def assign_slots(system, prn, glo_channel, ever_visible, slots_per_system=DEFAUL
     )
 
 
-def slot_frequencies_hz(slots: SlotTable, bands=PPP_BANDS):
+def slot_frequencies_hz(slots: SlotTable, bands=PPP_BANDS) -> Float[Array, "S b"]:
     """Carrier frequencies [n_slots, len(bands)] of every slot (empty slots get their system's)."""
     return jnp.stack(
         [carrier_frequency_hz(slots.system, b, slots.glo_channel) for b in bands], axis=-1
     )
 
 
-def slot_if_wavelength_m(slots: SlotTable):
+def slot_if_wavelength_m(slots: SlotTable) -> Float[Array, " S"]:
     """lambda_IF [n_slots] of the PPP pair (bands 0, 1) per slot (per satellite for GLONASS)."""
     pairs = np.array([if_integers(*BAND_MULTIPLIER[s, :2]) for s in range(N_SYSTEMS)])
     i1 = jnp.asarray(pairs[:, 0], dtype=jnp.float64)[slots.system]
@@ -263,7 +274,7 @@ def slot_if_wavelength_m(slots: SlotTable):
     return if_wavelength_m(f[:, 0], f[:, 1], i1, i2)
 
 
-def slot_labels(slots: SlotTable):
+def slot_labels(slots: SlotTable) -> list[str]:
     """Human-readable satellite ids per slot ("G05", "R12", "E24"; "---" for empty slots)."""
     out = []
     for s, p, occ in zip(

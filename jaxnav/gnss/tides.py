@@ -20,6 +20,7 @@ Pure JAX, float64, broadcasting over leading time axes. Times are GPS seconds (s
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float, Real
 
 from jaxnav import geodesy
 from jaxnav.core.gpstime import GPS_UTC_LEAP_S
@@ -156,7 +157,9 @@ def moon_ecliptic(T):
     return lon, lat_arcsec * _ARCSEC, r_km * 1e3
 
 
-def sun_moon_ecef(t_gps_s, leap_seconds=GPS_UTC_LEAP_S):
+def sun_moon_ecef(
+    t_gps_s: Real[ArrayLike, "*T"], leap_seconds=GPS_UTC_LEAP_S
+) -> tuple[Float[Array, "*T 3"], Float[Array, "*T 3"]]:
     """ECEF positions [m] of the Sun and the Moon at GPS time(s) t (shape [..., 3] each)."""
     t = jnp.asarray(t_gps_s, dtype=jnp.float64)
     T = julian_centuries_tt(t)
@@ -180,7 +183,13 @@ def _degree2_body(r_hat, body_ecef, gm_ratio, h2, l2, radius_m):
     return scale * (radial + tangential)
 
 
-def solid_tide_from_bodies(pos_ecef, sun_ecef, moon_ecef, gmst, k1_term=True):
+def solid_tide_from_bodies(
+    pos_ecef: Float[ArrayLike, "*#T 3"],
+    sun_ecef: Float[ArrayLike, "*#T 3"],
+    moon_ecef: Float[ArrayLike, "*#T 3"],
+    gmst: Float[ArrayLike, "*#T"],
+    k1_term: bool = True,
+) -> Float[Array, "*#T 3"]:
     """Solid Earth tide displacement [m, ECEF] of a site, given the Sun and Moon (IERS eq 7.5).
 
     Degree-2 step 1 of both bodies with h2(lat), l2(lat) (IERS eq 7.2) and, if ``k1_term``, the
@@ -202,7 +211,12 @@ def solid_tide_from_bodies(pos_ecef, sun_ecef, moon_ecef, gmst, k1_term=True):
     return dr
 
 
-def solid_tide_ecef(pos_ecef, t_gps_s, leap_seconds=GPS_UTC_LEAP_S, k1_term=True):
+def solid_tide_ecef(
+    pos_ecef: Float[ArrayLike, "*#T 3"],
+    t_gps_s: Real[ArrayLike, "*#T"],
+    leap_seconds=GPS_UTC_LEAP_S,
+    k1_term: bool = True,
+) -> Float[Array, "*#T 3"]:
     """Solid Earth tide displacement [m, ECEF] of a site at GPS time(s) t (IERS 2010 eq 7.5).
 
     Add it to the (tide-free) marker position to get the instantaneous position; subtract its
@@ -213,7 +227,9 @@ def solid_tide_ecef(pos_ecef, t_gps_s, leap_seconds=GPS_UTC_LEAP_S, k1_term=True
     return solid_tide_from_bodies(pos_ecef, sun, moon, gmst_rad(t, leap_seconds), k1_term)
 
 
-def displacement_enu(disp_ecef, pos_ecef):
+def displacement_enu(
+    disp_ecef: Float[ArrayLike, "*T 3"], pos_ecef: Float[ArrayLike, "3"]
+) -> Float[Array, "*T 3"]:
     """A site displacement [m] expressed in the site's ENU frame (east, north, up)."""
     llh = geodesy.ecef_to_llh(jnp.asarray(pos_ecef, dtype=jnp.float64))
     return disp_ecef @ geodesy.C_l_e(llh[0], llh[1])

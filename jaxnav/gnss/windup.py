@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxnav import geodesy
 
@@ -38,7 +39,9 @@ def _unit(v):
     return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def satellite_axes(sat_pos_ecef, sun_pos_ecef):
+def satellite_axes(
+    sat_pos_ecef: Float[ArrayLike, "*S 3"], sun_pos_ecef: Float[ArrayLike, "*#S 3"]
+) -> tuple[Float[Array, "*S 3"], Float[Array, "*S 3"]]:
     """Nominal yaw-steering dipole axes (x_s, y_s) of a satellite (S002 eqs 2.6-2.8), ECEF."""
     z_s = -_unit(sat_pos_ecef)
     e_sun = _unit(sun_pos_ecef - sat_pos_ecef)
@@ -47,13 +50,20 @@ def satellite_axes(sat_pos_ecef, sun_pos_ecef):
     return x_s, y_s
 
 
-def receiver_axes(llh):
+def receiver_axes(llh: Float[ArrayLike, "3"]) -> tuple[Float[Array, "3"], Float[Array, "3"]]:
     """Dipole axes of a north-aligned receiver antenna at one ``llh``: x_r = north, y_r = west."""
     C = geodesy.C_l_e(llh[0], llh[1])  # columns: east, north, up in ECEF
     return C[:, 1], -C[:, 0]
 
 
-def windup_fraction_rad(sat_pos_ecef, rcv_pos_ecef, x_s, y_s, x_r, y_r):
+def windup_fraction_rad(
+    sat_pos_ecef: Float[ArrayLike, "*#S 3"],
+    rcv_pos_ecef: Float[ArrayLike, "*#S 3"],
+    x_s: Float[ArrayLike, "*#S 3"],
+    y_s: Float[ArrayLike, "*#S 3"],
+    x_r: Float[ArrayLike, "*#S 3"],
+    y_r: Float[ArrayLike, "*#S 3"],
+) -> Float[Array, "*#S"]:
     """Fractional wind-up dphi in (-pi, pi] [rad] (S002 eqs 2.14-2.17, eq 2.14 sign fixed).
 
     ``x_s, y_s`` are the satellite dipole axes, ``x_r, y_r`` the receiver's (all ECEF unit
@@ -78,7 +88,9 @@ def continue_windup(prev_rad, fraction_rad):
     return 2.0 * jnp.pi * n + fraction_rad
 
 
-def windup_series_rad(fraction_rad, initial_rad=None):
+def windup_series_rad(
+    fraction_rad: Float[Array, " T *S"], initial_rad: Float[ArrayLike, "*#S"] | None = None
+) -> Float[Array, " T *S"]:
     """Continuous wind-up [rad] of a time series of fractions [T, ...] (lax.scan of eq 2.18).
 
     The first epoch keeps its fraction (N initialised with zero, S002) unless ``initial_rad``
@@ -96,7 +108,12 @@ def windup_series_rad(fraction_rad, initial_rad=None):
     return jnp.concatenate([first[None], rest], axis=0)
 
 
-def windup_rad(sat_pos_ecef, rcv_pos_ecef, sun_pos_ecef, rcv_llh):
+def windup_rad(
+    sat_pos_ecef: Float[ArrayLike, "*S 3"],
+    rcv_pos_ecef: Float[ArrayLike, "*#S 3"],
+    sun_pos_ecef: Float[ArrayLike, "*#S 3"],
+    rcv_llh: Float[ArrayLike, "3"],
+) -> Float[Array, "*S"]:
     """Fractional wind-up [rad] for nominal yaw-steering satellites and a north-aligned antenna.
 
     Shapes: satellites [..., S, 3], receiver [3] (or broadcastable), Sun [3], llh [3].

@@ -32,6 +32,7 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxnav import attitude, geodesy
 from jaxnav.core.states import StateLayout
@@ -142,7 +143,15 @@ def _gravity_partials(llh):
     return jnp.array([[z, z, z], [z, z, z], [-dg_dlat, z, -dg_dh]])
 
 
-def error_dynamics(layout: StateLayout, llh, vel_enu, C_b_l, f_b, w_ib_b, model: ImuErrorModel):
+def error_dynamics(
+    layout: StateLayout,
+    llh: Float[ArrayLike, "3"],
+    vel_enu: Float[ArrayLike, "3"],
+    C_b_l: Float[ArrayLike, "3 3"],
+    f_b: Float[ArrayLike, "3"],
+    w_ib_b: Float[ArrayLike, "3"],
+    model: ImuErrorModel,
+) -> tuple[Float[Array, "n n"], Float[Array, "n q"], Float[Array, "q q"]]:
     """Continuous error model dx' = F dx + G w, E[w w^T] = Qc delta(t) (module docstring).
 
     ``f_b`` [m/s^2] and ``w_ib_b`` [rad/s] are the compensated body specific force and angular
@@ -201,7 +210,8 @@ def error_dynamics(layout: StateLayout, llh, vel_enu, C_b_l, f_b, w_ib_b, model:
 
 
 def sensor_initial_std(layout: StateLayout, model: ImuErrorModel,
-                       gyro_calibration_s: float | None = None):
+                       gyro_calibration_s: Float[ArrayLike, ""] | None = None
+                       ) -> Float[Array, " n"]:
     """Initial standard deviations of the sensor blocks (zeros for every other block).
 
     GM blocks start at their steady-state sigma; turn-on blocks at their turn-on sigma. In a
@@ -236,10 +246,10 @@ def sensor_initial_std(layout: StateLayout, model: ImuErrorModel,
 class SensorErrors(NamedTuple):
     """Running estimate of the raw IMU errors: meas = (1 + S) true + b (elementwise, S001 eq 12)."""
 
-    accel_bias_m_s2: jax.Array
-    gyro_bias_rad_s: jax.Array
-    accel_scale: jax.Array  # unitless
-    gyro_scale: jax.Array  # unitless
+    accel_bias_m_s2: Float[Array, "3"]
+    gyro_bias_rad_s: Float[Array, "3"]
+    accel_scale: Float[Array, "3"]  # unitless
+    gyro_scale: Float[Array, "3"]  # unitless
 
     @classmethod
     def zeros(cls) -> SensorErrors:
@@ -247,7 +257,7 @@ class SensorErrors(NamedTuple):
         return cls(z, z, z, z)
 
 
-def feedback(nav: NavState, dx, layout: StateLayout) -> NavState:
+def feedback(nav: NavState, dx: Float[Array, " n"], layout: StateLayout) -> NavState:
     """Remove the estimated navigation errors: x <- x_hat - dx, C <- exp([eps x]) C_hat.
 
     The attitude correction is ``attitude.correct_attitude`` written with quaternions:
@@ -263,7 +273,9 @@ def _block(dx, layout, name):
     return dx[layout.sl(name)] if layout.has(name) else jnp.zeros(3, dx.dtype)
 
 
-def feedback_sensors(sensor: SensorErrors, dx, layout: StateLayout) -> SensorErrors:
+def feedback_sensors(
+    sensor: SensorErrors, dx: Float[Array, " n"], layout: StateLayout
+) -> SensorErrors:
     """Fold estimated output errors (bias drift + turn-on, scale) into the raw-error estimate.
 
     With compensation f_used = (f_meas - b_hat) / (1 + S_hat), the output error is
@@ -283,7 +295,9 @@ def feedback_sensors(sensor: SensorErrors, dx, layout: StateLayout) -> SensorErr
     )
 
 
-def correct_imu(imu: ImuIncrements, sensor: SensorErrors, dt) -> ImuIncrements:
+def correct_imu(
+    imu: ImuIncrements, sensor: SensorErrors, dt: Float[ArrayLike, ""] | Float[ArrayLike, " N"]
+) -> ImuIncrements:
     """Invert S001 eq 12: dtheta = (dtheta_meas - b_g dt) / (1 + S_g); dv likewise. (3,)/(N, 3)."""
     dt = jnp.asarray(dt, jnp.float64)[..., None]
     return ImuIncrements(
@@ -292,7 +306,9 @@ def correct_imu(imu: ImuIncrements, sensor: SensorErrors, dt) -> ImuIncrements:
     )
 
 
-def corrupt_imu(imu: ImuIncrements, sensor: SensorErrors, dt) -> ImuIncrements:
+def corrupt_imu(
+    imu: ImuIncrements, sensor: SensorErrors, dt: Float[ArrayLike, ""] | Float[ArrayLike, " N"]
+) -> ImuIncrements:
     """S001 eq 12 forward: dtheta_meas = (1 + S_g) dtheta + b_g dt; dv likewise with S_a, b_a."""
     dt = jnp.asarray(dt, jnp.float64)[..., None]
     return ImuIncrements(
@@ -304,7 +320,12 @@ def corrupt_imu(imu: ImuIncrements, sensor: SensorErrors, dt) -> ImuIncrements:
 # ---- lever-arm Jacobians (for strapdown.antenna_llh / antenna_vel_enu) -------------------------
 
 
-def antenna_llh_jacobian(layout: StateLayout, llh, C_b_l, lever_b):
+def antenna_llh_jacobian(
+    layout: StateLayout,
+    llh: Float[ArrayLike, "3"],
+    C_b_l: Float[ArrayLike, "3 3"],
+    lever_b: Float[ArrayLike, "3"],
+) -> Float[Array, "3 n"]:
     """d(llh_ant)/d(dx) for llh_ant = llh + D^-1 C l: I + d(D^-1 u)/dr on pos, D^-1 [u x] on att.
 
     u = C_b^l l^b; the attitude column follows from C_hat l = u + u x eps. Shape (3, n).
@@ -329,7 +350,14 @@ def antenna_llh_jacobian(layout: StateLayout, llh, C_b_l, lever_b):
     return H
 
 
-def antenna_vel_jacobian(layout: StateLayout, llh, vel_enu, C_b_l, w_ib_b, lever_b):
+def antenna_vel_jacobian(
+    layout: StateLayout,
+    llh: Float[ArrayLike, "3"],
+    vel_enu: Float[ArrayLike, "3"],
+    C_b_l: Float[ArrayLike, "3 3"],
+    w_ib_b: Float[ArrayLike, "3"],
+    lever_b: Float[ArrayLike, "3"],
+) -> Float[Array, "3 n"]:
     """d(antenna ENU velocity)/d(dx) for v_ant = v + C (w_ib x l) - w_ie x (C l). Shape (3, n).
 
     Terms: I on vel; [(C (w x l)) x] - [w_ie x][u x] on att (u = C l); [u x] dw_ie/dlat on pos;

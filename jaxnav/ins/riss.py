@@ -31,6 +31,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxnav.attitude import wrap_angle
 from jaxnav.geodesy import OMEGA_E, normal_gravity, radii
@@ -39,21 +40,21 @@ from jaxnav.geodesy import OMEGA_E, normal_gravity, radii
 class RissInput(NamedTuple):
     """One RISS sample (scalars) or a stack of samples (leading time axis); see module docstring."""
 
-    f_x: jax.Array  # transverse specific force, interval mean [m/s^2]
-    f_y: jax.Array  # forward specific force, interval mean [m/s^2]
-    w_z: jax.Array  # vertical gyro rate, interval mean [rad/s]
-    v_od: jax.Array  # odometer speed at t_k [m/s]
-    a_od: jax.Array  # odometer acceleration over (t_{k-1}, t_k] [m/s^2]
+    f_x: Float[ArrayLike, "*N"]  # transverse specific force, interval mean [m/s^2]
+    f_y: Float[ArrayLike, "*N"]  # forward specific force, interval mean [m/s^2]
+    w_z: Float[ArrayLike, "*N"]  # vertical gyro rate, interval mean [rad/s]
+    v_od: Float[ArrayLike, "*N"]  # odometer speed at t_k [m/s]
+    a_od: Float[ArrayLike, "*N"]  # odometer acceleration over (t_{k-1}, t_k] [m/s^2]
 
 
 class RissState(NamedTuple):
     """RISS navigation state at t_k."""
 
-    llh: jax.Array  # (lat_rad, lon_rad, h_m)
-    vel_enu: jax.Array  # (ve, vn, vu) [m/s]
-    azimuth: jax.Array  # clockwise from north [rad], wrapped to (-pi, pi]
-    pitch: jax.Array  # [rad]
-    roll: jax.Array  # [rad]
+    llh: Float[Array, "3"]  # (lat_rad, lon_rad, h_m)
+    vel_enu: Float[Array, "3"]  # (ve, vn, vu) [m/s]
+    azimuth: Float[Array, ""]  # clockwise from north [rad], wrapped to (-pi, pi]
+    pitch: Float[Array, ""]  # [rad]
+    roll: Float[Array, ""]  # [rad]
 
 
 class RissSensorErrors(NamedTuple):
@@ -66,10 +67,10 @@ class RissSensorErrors(NamedTuple):
     They are held constant between filter updates (``riss_errors.riss_feedback`` updates them).
     """
 
-    gyro_bias_z_rad_s: jax.Array
-    accel_bias_xy_m_s2: jax.Array  # shape (2,)
-    odo_scale: jax.Array  # relative error of the raw odometer speed (unitless)
-    odo_accel_bias_m_s2: jax.Array
+    gyro_bias_z_rad_s: Float[Array, ""]
+    accel_bias_xy_m_s2: Float[Array, "2"]
+    odo_scale: Float[Array, ""]  # relative error of the raw odometer speed (unitless)
+    odo_accel_bias_m_s2: Float[Array, ""]
 
 
 def zero_sensor_errors() -> RissSensorErrors:
@@ -95,12 +96,16 @@ def correct_input(inp: RissInput, sensor_errors: RissSensorErrors | None = None)
 # ---- input helpers ----------------------------------------------------------------------------
 
 
-def rates_from_increments(dtheta_b, dv_b, dt):
+def rates_from_increments(
+    dtheta_b: Float[ArrayLike, "*N 3"], dv_b: Float[ArrayLike, "*N 3"], dt: Float[ArrayLike, ""]
+):
     """Interval-mean (f_x, f_y, w_z) = (dv_b[..., 0]/dt, dv_b[..., 1]/dt, dtheta_b[..., 2]/dt)."""
     return dv_b[..., 0] / dt, dv_b[..., 1] / dt, dtheta_b[..., 2] / dt
 
 
-def odometer_acceleration(v_od, dt, v_od_initial):
+def odometer_acceleration(
+    v_od: Float[ArrayLike, " N"], dt: Float[ArrayLike, ""], v_od_initial: Float[ArrayLike, ""]
+) -> Float[Array, " N"]:
     """a_od[k] = (v_od[k] - v_od[k-1]) / dt with v_od[-1] = ``v_od_initial`` (speed at t_0).
 
     The backward difference is the exact mean acceleration over (t_{k-1}, t_k], matching the
@@ -110,7 +115,13 @@ def odometer_acceleration(v_od, dt, v_od_initial):
     return (v_od - v_prev) / dt
 
 
-def riss_inputs_from_imu(dtheta_b, dv_b, v_od, dt, v_od_initial) -> RissInput:
+def riss_inputs_from_imu(
+    dtheta_b: Float[ArrayLike, "N 3"],
+    dv_b: Float[ArrayLike, "N 3"],
+    v_od: Float[ArrayLike, " N"],
+    dt: Float[ArrayLike, ""],
+    v_od_initial: Float[ArrayLike, ""],
+) -> RissInput:
     """Stacked ``RissInput`` from the shared increment contract (N, 3) and odometer speeds (N,)."""
     f_x, f_y, w_z = rates_from_increments(dtheta_b, dv_b, dt)
     return RissInput(f_x, f_y, w_z, v_od, odometer_acceleration(v_od, dt, v_od_initial))
@@ -159,7 +170,9 @@ def riss_pitch_roll(f_x, f_y, w_z, v_od, a_od, g):
     return pitch, roll
 
 
-def riss_velocity(v_od, azimuth, pitch):
+def riss_velocity(
+    v_od: Float[ArrayLike, ""], azimuth: Float[ArrayLike, ""], pitch: Float[ArrayLike, ""]
+) -> Float[Array, "3"]:
     """ENU velocity of the forward odometer speed (S000 eqs 4.4-4.6, S002 eqs 3.9-3.11)."""
     cp = jnp.cos(pitch)
     return jnp.stack(
@@ -167,7 +180,13 @@ def riss_velocity(v_od, azimuth, pitch):
     )
 
 
-def riss_state_from(llh, azimuth, speed, pitch=0.0, roll=0.0) -> RissState:
+def riss_state_from(
+    llh: Float[ArrayLike, "3"],
+    azimuth: Float[ArrayLike, ""],
+    speed: Float[ArrayLike, ""],
+    pitch: Float[ArrayLike, ""] = 0.0,
+    roll: Float[ArrayLike, ""] = 0.0,
+) -> RissState:
     """A consistent initial state: the velocity is the odometer speed along (azimuth, pitch)."""
     llh = jnp.asarray(llh, jnp.float64)
     azimuth, pitch, roll = (jnp.asarray(x, jnp.float64) for x in (azimuth, pitch, roll))
@@ -186,7 +205,12 @@ def _azimuth_rate(w_z_corr, lat, h, ve):
     return -(w_z_corr - OMEGA_E * jnp.sin(lat) - ve * jnp.tan(lat) / (r_n + h))
 
 
-def riss_step(state: RissState, inp: RissInput, dt, sensor_errors: RissSensorErrors | None = None):
+def riss_step(
+    state: RissState,
+    inp: RissInput,
+    dt: Float[ArrayLike, ""],
+    sensor_errors: RissSensorErrors | None = None,
+) -> RissState:
     """One RISS epoch t_{k-1} -> t_k (S002 eqs 3.6-3.14; S000 eqs 4.1-4.9 discretised).
 
     Sensor errors (if given) are removed first. The azimuth is integrated with the Earth and
@@ -212,8 +236,11 @@ def riss_step(state: RissState, inp: RissInput, dt, sensor_errors: RissSensorErr
 
 
 def riss_run(
-    state0: RissState, inputs: RissInput, dt, sensor_errors: RissSensorErrors | None = None
-):
+    state0: RissState,
+    inputs: RissInput,
+    dt: Float[ArrayLike, ""],
+    sensor_errors: RissSensorErrors | None = None,
+) -> tuple[RissState, RissState]:
     """Mechanize a stack of inputs with ``lax.scan``: returns (final state, history at t_1..t_N)."""
 
     def body(state, inp):
@@ -227,8 +254,16 @@ def riss_run(
 
 
 def riss_rate(
-    llh, vel_enu, azimuth, pitch, odo_accel, gyro_bias_z, w_z, pitch_rate=0.0, radii_mn=None
-):
+    llh: Float[ArrayLike, "3"],
+    vel_enu: Float[ArrayLike, "3"],
+    azimuth: Float[ArrayLike, ""],
+    pitch: Float[ArrayLike, ""],
+    odo_accel: Float[ArrayLike, ""],
+    gyro_bias_z: Float[ArrayLike, ""],
+    w_z: Float[ArrayLike, ""],
+    pitch_rate: Float[ArrayLike, ""] = 0.0,
+    radii_mn=None,
+) -> tuple[Float[Array, "3"], Float[Array, "3"], Float[Array, ""]]:
     """Continuous RISS dynamics with the velocity as a state (the form S000/S002 linearise).
 
     lat' = vn/(R_M+h), lon' = ve/((R_N+h) cos lat), h' = vu (S000 eqs 4.7-4.9);

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxnav.attitude import wrap_angle
 from jaxnav.core.states import RISS9, RISS16, StateLayout
@@ -190,7 +191,7 @@ def riss9_dynamics(
     inp: RissInput,
     params: RissNoiseParams,
     sensor_errors: RissSensorErrors | None = None,
-):
+) -> tuple[Float[Array, "n n"], Float[Array, "n q"], Float[Array, "q q"]]:
     """(F, G, Qc) of layout RISS9 (S002 eqs 5.8, 5.12-5.21; SEED_SPEC 1.5.1).
 
     ``inp`` is the raw input of the latest mechanization step and ``sensor_errors`` the
@@ -218,7 +219,7 @@ def riss16_dynamics(
     inp: RissInput,
     params: RissNoiseParams,
     sensor_errors: RissSensorErrors | None = None,
-):
+) -> tuple[Float[Array, "n n"], Float[Array, "n q"], Float[Array, "q q"]]:
     """(F, G, Qc) of layout RISS16 (S000 eqs 4.15-4.43 in its F order, SEED_SPEC 1.5.2 and 4).
 
     Navigation rows as S002 (S000 items 3-5 corrected). GM states: odometer acceleration, gyro
@@ -258,14 +259,15 @@ def riss16_dynamics(
     return F, G, Qc
 
 
-def along_track_unit(azimuth, pitch):
+def along_track_unit(azimuth: Float[ArrayLike, ""], pitch: Float[ArrayLike, ""]
+                     ) -> Float[Array, "3"]:
     """u(A, p) = (sinA cosp, cosA cosp, sinp): the ENU direction of the RISS velocity
     (S000 eqs 4.4-4.6, v = v_od u)."""
     cp = jnp.cos(pitch)
     return jnp.stack([jnp.sin(azimuth) * cp, jnp.cos(azimuth) * cp, jnp.sin(pitch)])
 
 
-def mechanized_velocity_jacobian(layout: StateLayout, state: RissState):
+def mechanized_velocity_jacobian(layout: StateLayout, state: RissState) -> Float[Array, "3 n"]:
     """M (3 x n): the RISS velocity error the azimuth, odometer and pitch-source states imply.
 
     The RISS mechanization does not integrate its velocity: every input re-derives it as
@@ -299,8 +301,8 @@ def mechanized_velocity_jacobian(layout: StateLayout, state: RissState):
     return M
 
 
-def odometer_scale_rate(state: RissState, inp: RissInput, dt_s,
-                        sensor_errors: RissSensorErrors | None = None):
+def odometer_scale_rate(state: RissState, inp: RissInput, dt_s: Float[ArrayLike, ""],
+                        sensor_errors: RissSensorErrors | None = None) -> Float[Array, ""]:
     """F[odo_speed, odo_speed] = ln(v_k / v_{k-1}) / dt: a scale-factor speed error dk v_od.
 
     The mechanization scales the odometer, v_od (1 - k) (``riss.correct_input``), and never
@@ -315,8 +317,13 @@ def odometer_scale_rate(state: RissState, inp: RissInput, dt_s,
     return jnp.log(v1 / v0) / dt_s
 
 
-def algebraic_velocity_dynamics(F, layout: StateLayout, state: RissState, read_beta_1_s,
-                                odo_scale_rate_1_s=0.0):
+def algebraic_velocity_dynamics(
+    F: Float[Array, "n n"],
+    layout: StateLayout,
+    state: RissState,
+    read_beta_1_s: Float[ArrayLike, ""],
+    odo_scale_rate_1_s: Float[ArrayLike, ""] = 0.0,
+) -> Float[Array, "n n"]:
     """Recast a seed F (``riss9_dynamics`` / ``riss16_dynamics``) so that the velocity error is
     the algebraic dv_total = dx[vel] + M dx (``mechanized_velocity_jacobian``).
 
@@ -363,8 +370,11 @@ def algebraic_velocity_dynamics(F, layout: StateLayout, state: RissState, read_b
 
 
 def riss_feedback(
-    state: RissState, dx, layout: StateLayout, sensor_errors: RissSensorErrors | None = None
-):
+    state: RissState,
+    dx: Float[Array, " n"],
+    layout: StateLayout,
+    sensor_errors: RissSensorErrors | None = None,
+) -> tuple[RissState, RissSensorErrors]:
     """Closed-loop correction x = x_hat - dx (S002 §5.3, S000; SEED_SPEC 1.7).
 
     Works for any layout holding RISS blocks by name (RISS9, RISS16, or either extended with

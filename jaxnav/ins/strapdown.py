@@ -39,6 +39,7 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxnav import attitude, geodesy
 
@@ -46,12 +47,12 @@ from jaxnav import attitude, geodesy
 class NavState(NamedTuple):
     """Navigation state: geodetic position, ENU velocity, attitude quaternion body -> ENU."""
 
-    llh: jax.Array  # (lat [rad], lon [rad], h [m])
-    vel_enu: jax.Array  # (v_east, v_north, v_up) [m/s]
-    q_b_l: jax.Array  # Hamilton scalar-first unit quaternion, v^l = q (x) v^b (x) q*
+    llh: Float[Array, "3"]  # (lat [rad], lon [rad], h [m])
+    vel_enu: Float[Array, "3"]  # (v_east, v_north, v_up) [m/s]
+    q_b_l: Float[Array, "4"]  # Hamilton scalar-first unit quaternion, v^l = q (x) v^b (x) q*
 
     @property
-    def C_b_l(self) -> jax.Array:
+    def C_b_l(self) -> Float[Array, "3 3"]:
         """DCM body -> ENU of ``q_b_l``."""
         return attitude.dcm_from_quat(self.q_b_l)
 
@@ -59,8 +60,8 @@ class NavState(NamedTuple):
 class ImuIncrements(NamedTuple):
     """IMU sample(s): integrals of w_ib^b and f^b over (t_{k-1}, t_k]; shape (3,) or (N, 3)."""
 
-    dtheta_b: jax.Array  # [rad], body right-forward-up axes
-    dv_b: jax.Array  # [m/s], body right-forward-up axes
+    dtheta_b: Float[Array, "*N 3"]  # [rad], body right-forward-up axes
+    dv_b: Float[Array, "*N 3"]  # [m/s], body right-forward-up axes
 
 
 class InsNav(eqx.Module):
@@ -71,7 +72,9 @@ class InsNav(eqx.Module):
     prev: ImuIncrements
 
 
-def nav_state(llh, vel_enu, euler_rpa) -> NavState:
+def nav_state(
+    llh: Float[ArrayLike, "3"], vel_enu: Float[ArrayLike, "3"], euler_rpa: Float[ArrayLike, "3"]
+) -> NavState:
     """Build a NavState from (roll, pitch, azimuth) [rad] (attitude.py conventions)."""
     return NavState(
         jnp.asarray(llh, jnp.float64),
@@ -80,7 +83,13 @@ def nav_state(llh, vel_enu, euler_rpa) -> NavState:
     )
 
 
-def nav_rate(llh, vel_enu, C_b_l, f_b, w_ib_b):
+def nav_rate(
+    llh: Float[ArrayLike, "3"],
+    vel_enu: Float[ArrayLike, "3"],
+    C_b_l: Float[ArrayLike, "3 3"],
+    f_b: Float[ArrayLike, "3"],
+    w_ib_b: Float[ArrayLike, "3"],
+) -> tuple[Float[Array, "3"], Float[Array, "3"], Float[Array, "3 3"]]:
     """Continuous INS dynamics (S002 eq 3.3): returns (llh', v^l', C_b^l').
 
     llh' = D^-1 v; v' = C f - (2 w_ie + w_el) x v + g; C' = C [w_ib x] - [w_il x] C, which is
@@ -130,7 +139,16 @@ def _wrap_lon(lon):
     )
 
 
-def _velocity_position(llh, vel_enu, C_b_l, imu, dv_sf_b, dt, llh_mid, vel_mid):
+def _velocity_position(
+    llh: Float[ArrayLike, "3"],
+    vel_enu: Float[ArrayLike, "3"],
+    C_b_l: Float[Array, "3 3"],
+    imu: ImuIncrements,
+    dv_sf_b: Float[Array, "3"],
+    dt: Float[ArrayLike, ""],
+    llh_mid: Float[ArrayLike, "3"],
+    vel_mid: Float[ArrayLike, "3"],
+) -> tuple[Float[Array, "3"], Float[Array, "3"], Float[Array, "3"]]:
     """Velocity and trapezoidal position update with gravity/Coriolis evaluated at mid-interval."""
     w_ie = geodesy.earth_rate_enu(llh_mid[0])
     w_el = geodesy.transport_rate_enu(llh_mid, vel_mid)
@@ -165,7 +183,7 @@ def mechanize_step(
     nav: NavState,
     prev_imu: ImuIncrements,
     imu: ImuIncrements,
-    dt,
+    dt: Float[ArrayLike, ""],
     *,
     coning: bool = True,
     sculling: bool = True,
@@ -201,7 +219,7 @@ def mechanize_step(
 def mechanize(
     nav0: NavState,
     imu_seq: ImuIncrements,
-    dt,
+    dt: Float[ArrayLike, ""] | Float[ArrayLike, " N"],
     prev_imu0: ImuIncrements | None = None,
     *,
     coning: bool = True,
@@ -229,7 +247,9 @@ def mechanize(
     return nav_final, history
 
 
-def stationary_imu(llh, C_b_l, dt) -> ImuIncrements:
+def stationary_imu(
+    llh: Float[ArrayLike, "3"], C_b_l: Float[ArrayLike, "3 3"], dt: Float[ArrayLike, ""]
+) -> ImuIncrements:
     """Exact increments of a perfect IMU at rest on the Earth: w_ib^b = C^T w_ie^l, f^b = -C^T g^l.
 
     Both are constant in the body frame (the body is fixed in the l-frame, which turns at w_ie
@@ -240,7 +260,9 @@ def stationary_imu(llh, C_b_l, dt) -> ImuIncrements:
     return ImuIncrements(w_ib_b * dt, f_b * dt)
 
 
-def antenna_llh(llh, C_b_l, lever_b):
+def antenna_llh(
+    llh: Float[ArrayLike, "3"], C_b_l: Float[ArrayLike, "3 3"], lever_b: Float[ArrayLike, "3"]
+) -> Float[Array, "3"]:
     """Geodetic position of a point at body offset ``lever_b`` [m]: llh + D^-1 C_b^l l^b.
 
     First order in |l|/R (S001 eq 10, L_p = C_b^n l^b); the neglected curvature term is below
@@ -249,7 +271,13 @@ def antenna_llh(llh, C_b_l, lever_b):
     return llh + geodesy.llh_rate_matrix(llh) @ (C_b_l @ lever_b)
 
 
-def antenna_vel_enu(llh, vel_enu, C_b_l, w_ib_b, lever_b):
+def antenna_vel_enu(
+    llh: Float[ArrayLike, "3"],
+    vel_enu: Float[ArrayLike, "3"],
+    C_b_l: Float[ArrayLike, "3 3"],
+    w_ib_b: Float[ArrayLike, "3"],
+    lever_b: Float[ArrayLike, "3"],
+) -> Float[Array, "3"]:
     """ENU velocity (Earth-referenced) of the point at body offset ``lever_b``.
 
     v_ant = v + C_b^l (w_eb^b x l^b) with w_eb^b = w_ib^b - C_l^b w_ie^l, the body rate relative

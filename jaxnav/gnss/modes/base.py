@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxnav.gnss import models
 from jaxnav.gnss.ppp_data import Combos, GnssObs, HatchState
@@ -45,10 +46,10 @@ class Block(NamedTuple):
 class RowBlock(NamedTuple):
     """S rows of one kind: residual, Jacobian, variance (uncorrelated), mask, kind."""
 
-    dz: jnp.ndarray  # [S]
-    H: jnp.ndarray  # [S, n]
-    var: jnp.ndarray  # [S]
-    mask: jnp.ndarray  # [S] bool
+    dz: Float[Array, " S"]
+    H: Float[Array, "S n"]
+    var: Float[Array, " S"]
+    mask: Bool[Array, " S"]
     kind: int  # ppp_data.KIND_*
 
 
@@ -56,21 +57,22 @@ class RowContext(NamedTuple):
     """Per-epoch quantities shared by every mode's rows (built by ``ppp.measurement_rows``)."""
 
     layout: StateLayout
-    gnss_est: jnp.ndarray  # [n] the GNSS states' totals (ambiguities, ionosphere, ...)
+    gnss_est: Float[Array, " n"]  # the GNSS states' totals (ambiguities, ionosphere, ...)
     obs: GnssObs
     cmb: Combos
     hatch: HatchState
-    usable: jnp.ndarray  # [S] bool: tracked, kept by the study, above the elevation mask
-    geo_pred: jnp.ndarray  # [S] range + receiver clock and ISB - satellite clock + troposphere
-    H_common: jnp.ndarray  # [S, n] geometry, clock, ISB and ZWD columns
-    code_sigma: jnp.ndarray  # [S] raw code sigma at the slot's elevation (GLONASS scaled) [m]
-    phase_sigma: jnp.ndarray  # [S] raw phase sigma [m]
-    if_noise: jnp.ndarray  # [S] sqrt(alpha^2 + beta^2): IF noise amplification
-    iono_var: jnp.ndarray  # [S] variance of the model slant L1 ionosphere [m^2]
-    product_var: jnp.ndarray  # orbit + clock residual variance, common to code and phase [m^2]
+    usable: Bool[Array, " S"]  # tracked, kept by the study, above the elevation mask
+    geo_pred: Float[Array, " S"]  # range + receiver clock and ISB - satellite clock + troposphere
+    H_common: Float[Array, "S n"]  # geometry, clock, ISB and ZWD columns
+    code_sigma: Float[Array, " S"]  # raw code sigma at the slot's elevation (GLONASS scaled) [m]
+    phase_sigma: Float[Array, " S"]  # raw phase sigma [m]
+    if_noise: Float[Array, " S"]  # sqrt(alpha^2 + beta^2): IF noise amplification
+    iono_var: Float[Array, " S"]  # variance of the model slant L1 ionosphere [m^2]
+    product_var: Float[ArrayLike, ""]  # orbit + clock residual variance, common to code and phase
 
 
-def per_slot_columns(layout: StateLayout, name: str, values) -> jnp.ndarray:
+def per_slot_columns(layout: StateLayout, name: str, values: Float[Array, " S"]
+                     ) -> Float[Array, "S n"]:
     """[S, n] block with values[i] at (i, first index of block ``name`` + i)."""
     S = values.shape[0]
     out = jnp.zeros((S, layout.size))
@@ -78,7 +80,12 @@ def per_slot_columns(layout: StateLayout, name: str, values) -> jnp.ndarray:
     return out.at[jnp.arange(S), start + jnp.arange(S)].set(values)
 
 
-def column(layout: StateLayout, name: str, n_rows: int, values=1.0) -> jnp.ndarray:
+def column(
+    layout: StateLayout,
+    name: str,
+    n_rows: int,
+    values: Float[ArrayLike, ""] | Float[ArrayLike, " r"] = 1.0,
+) -> Float[Array, "r n"]:
     """[n_rows, n] block with ``values`` in column ``name`` (zeros if the layout lacks it)."""
     out = jnp.zeros((n_rows, layout.size))
     if layout.has(name):
@@ -86,7 +93,9 @@ def column(layout: StateLayout, name: str, n_rows: int, values=1.0) -> jnp.ndarr
     return out
 
 
-def iono_model_var(cfg: PppConfig, iono_model_l1_m, elevation_rad) -> jnp.ndarray:
+def iono_model_var(
+    cfg: PppConfig, iono_model_l1_m: Float[Array, " S"], elevation_rad: Float[Array, " S"]
+) -> Float[Array, " S"]:
     """Variance [m^2] of the model (broadcast / GIM) slant L1 ionosphere:
     (fraction * I_model)^2 + (floor * s(E))^2, s(E) the S001 eq 11 elevation factor."""
     floor = models.elevation_sigma(cfg.iono_model_residual_floor_m, elevation_rad)
@@ -134,25 +143,28 @@ class AbstractPppMode(eqx.Module):
                 raise ValueError(f"PPP mode {self.name}: block {b.name!r} names init_sigma "
                                  f"{b.init_sigma!r}, which is not a PppConfig field")
 
-    def clock_code(self, cmb: Combos) -> jnp.ndarray:
+    def clock_code(self, cmb: Combos) -> Float[Array, " S"]:
         """[S] code whose median residual levels the receiver clock at the start."""
         return cmb.code_if_m
 
-    def process_noise(self, cfg: PppConfig, layout: StateLayout, elevation, q) -> jnp.ndarray:
+    def process_noise(self, cfg: PppConfig, layout: StateLayout, elevation: Float[Array, " S"],
+                      q: Float[Array, " n"]) -> Float[Array, " n"]:
         """Diagonal PSD q with the mode's blocks filled in (default: constants, q unchanged)."""
         return q
 
-    def reset_variance(self, cfg: PppConfig, obs: GnssObs, elevation):
+    def reset_variance(self, cfg: PppConfig, obs: GnssObs, elevation: Float[Array, " S"]
+                       ) -> dict[str, Float[Array, " S"]]:
         """{block: [S] variance} replacing the initial one when a slot restarts (default none)."""
         return {}
 
     def reset_values(self, cfg: PppConfig, layout: StateLayout, obs: GnssObs, cmb: Combos,
-                     restart, gnss_est) -> jnp.ndarray:
+                     restart: Bool[Array, " S"], gnss_est: Float[Array, " n"]
+                     ) -> Float[Array, " n"]:
         """``gnss_est`` with the restarted slots' blocks at their new values (default: as is)."""
         return gnss_est
 
-    def update_memory(self, cfg: PppConfig, hatch: HatchState, cmb: Combos, usable,
-                      restart) -> HatchState:
+    def update_memory(self, cfg: PppConfig, hatch: HatchState, cmb: Combos,
+                      usable: Bool[Array, " S"], restart: Bool[Array, " S"]) -> HatchState:
         """The per-slot memory after this epoch's observations (default: unused, unchanged)."""
         return hatch
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from jaxnav.gnss.modes.base import AbstractPppMode, Block, RowBlock
+from jaxnav.gnss.modes.base import AbstractPppMode, Block, RowBlock, RowContext
 from jaxnav.gnss.ppp_data import KIND_CODE
 
 
-def if_code_row(ctx) -> RowBlock:
+def if_code_row(ctx: RowContext) -> RowBlock:
     """The IF code row; its noise is the raw code's times sqrt(alpha^2 + beta^2), the products'
     residual added after the combination (it is common to both frequencies)."""
     var = (ctx.code_sigma * ctx.if_noise) ** 2 + ctx.product_var
@@ -21,5 +21,5 @@ class DfCode(AbstractPppMode):
     single_frequency: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = ()
 
-    def rows(self, cfg, ctx):
+    def rows(self, cfg, ctx) -> list[RowBlock]:
         return [if_code_row(ctx)]

@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
 
 from jaxnav.gnss.modes.base import AbstractPppMode, Block, RowBlock, per_slot_columns
 from jaxnav.gnss.modes.df_code import if_code_row
@@ -23,11 +24,12 @@ class FloatPpp(AbstractPppMode):
     single_frequency: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = (Block("amb", True, "ambiguity_init_sigma_m"),)
 
-    def reset_values(self, cfg, layout, obs, cmb, restart, gnss_est):
+    def reset_values(self, cfg, layout, obs, cmb, restart: Bool[Array, " S"],
+                     gnss_est: Float[Array, " n"]) -> Float[Array, " n"]:
         amb = jnp.where(restart, cmb.phase_if_m - cmb.code_if_m, gnss_est[layout.sl("amb")])
         return gnss_est.at[layout.sl("amb")].set(amb)
 
-    def rows(self, cfg, ctx):
+    def rows(self, cfg, ctx) -> list[RowBlock]:
         S = ctx.usable.shape[0]
         amb = ctx.gnss_est[ctx.layout.sl("amb")]
         H_phase = ctx.H_common + per_slot_columns(ctx.layout, "amb", jnp.ones(S))

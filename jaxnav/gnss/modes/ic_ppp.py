@@ -13,12 +13,14 @@ from __future__ import annotations
 from typing import ClassVar
 
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
 
 from jaxnav.gnss import models
 from jaxnav.gnss.modes.base import (
     AbstractPppMode,
     Block,
     RowBlock,
+    RowContext,
     column,
     iono_model_var,
     per_slot_columns,
@@ -28,17 +30,24 @@ from jaxnav.gnss.ppp_data import KIND_CODE, KIND_IONO, KIND_PHASE
 _SQRT_H = 60.0  # sqrt(3600 s): converts "per sqrt(hour)" to "per sqrt(second)"
 
 
-def iono_rw_sigma(cfg, elevation_rad):
+def iono_rw_sigma(cfg, elevation_rad: Float[Array, " S"]) -> Float[Array, " S"]:
     """S001 eq 5: q_ion = sigma for E >= 30 deg, sigma / (2 sin E) below [m/sqrt(h)]."""
     return models.elevation_sigma(cfg.iono_sigma_m_sqrt_h, elevation_rad)
 
 
-def slant_iono_process_noise(cfg, layout, elevation, q):
+def slant_iono_process_noise(
+    cfg, layout, elevation: Float[Array, " S"], q: Float[Array, " n"]
+) -> Float[Array, " n"]:
     """The slant ionosphere's random-walk PSD (S001 eqs 4-5) set in q."""
     return q.at[layout.sl("iono")].set((iono_rw_sigma(cfg, elevation) / _SQRT_H) ** 2)
 
 
-def restart_slots(layout, gnss_est, restart, values: dict):
+def restart_slots(
+    layout,
+    gnss_est: Float[Array, " n"],
+    restart: Bool[Array, " S"],
+    values: dict[str, Float[Array, " S"]],
+) -> Float[Array, " n"]:
     """``gnss_est`` with each per-slot block in ``values`` ({name: [S]}) set where ``restart``."""
     for name, value in values.items():
         cur = gnss_est[layout.sl(name)]
@@ -46,14 +55,15 @@ def restart_slots(layout, gnss_est, restart, values: dict):
     return gnss_est
 
 
-def slant_iono_reset_variance(cfg, obs, elevation):
+def slant_iono_reset_variance(cfg, obs, elevation: Float[Array, " S"]
+                              ) -> dict[str, Float[Array, " S"]]:
     """"prior": a restarted slant ionosphere starts at the model's variance (else the initial)."""
     if cfg.iono_constraint != "prior":
         return {}
     return {"iono": iono_model_var(cfg, obs.iono_model_l1_m, elevation)}
 
 
-def slant_iono_pseudo_rows(cfg, ctx) -> list[RowBlock]:
+def slant_iono_pseudo_rows(cfg, ctx: RowContext) -> list[RowBlock]:
     """"epoch": S001 eqs 6-7 as printed, I - I_model every epoch with the model's variance (its
     local-time / latitude term folded into the residual model; SEED_SPEC 2.5)."""
     if cfg.iono_constraint != "epoch":
@@ -76,7 +86,8 @@ class IcPpp(AbstractPppMode):
         Block("dcb", False, "dcb_init_sigma_m"),
     )
 
-    def process_noise(self, cfg, layout, elevation, q):
+    def process_noise(self, cfg, layout, elevation: Float[Array, " S"],
+                      q: Float[Array, " n"]) -> Float[Array, " n"]:
         """Slant ionosphere and DCB: random walks (S001 eqs 4-5, 8-9)."""
         q = slant_iono_process_noise(cfg, layout, elevation, q)
         return q.at[layout.i("dcb")].set((cfg.dcb_sigma_m_sqrt_h / _SQRT_H) ** 2)
@@ -84,7 +95,8 @@ class IcPpp(AbstractPppMode):
     def reset_variance(self, cfg, obs, elevation):
         return slant_iono_reset_variance(cfg, obs, elevation)
 
-    def reset_values(self, cfg, layout, obs, cmb, restart, gnss_est):
+    def reset_values(self, cfg, layout, obs, cmb, restart: Bool[Array, " S"],
+                     gnss_est: Float[Array, " n"]) -> Float[Array, " n"]:
         """I = I_model; N1 = L1 - P1 + 2 I, N2 = L2 - P2 + 2 gamma I (code and phase
         ionosphere of opposite sign)."""
         iono0 = obs.iono_model_l1_m
@@ -95,7 +107,7 @@ class IcPpp(AbstractPppMode):
         }
         return restart_slots(layout, gnss_est, restart, new)
 
-    def rows(self, cfg, ctx):
+    def rows(self, cfg, ctx) -> list[RowBlock]:
         layout, cmb = ctx.layout, ctx.cmb
         S = ctx.usable.shape[0]
         iono = ctx.gnss_est[layout.sl("iono")]

@@ -10,12 +10,15 @@ from __future__ import annotations
 from typing import ClassVar
 
 import jax.numpy as jnp
+from jaxtyping import Array, Bool
 
 from jaxnav.gnss.modes.base import AbstractPppMode, Block, RowBlock
-from jaxnav.gnss.ppp_data import KIND_CODE, HatchState
+from jaxnav.gnss.ppp_data import KIND_CODE, Combos, HatchState
 
 
-def hatch_update(cfg, state: HatchState, cmb, tracked, restart) -> HatchState:
+def hatch_update(
+    cfg, state: HatchState, cmb: Combos, tracked: Bool[Array, " S"], restart: Bool[Array, " S"]
+) -> HatchState:
     """Hatch: P_bar_k = P_k/n + (n-1)/n (P_bar_{k-1} + Phi_k - Phi_{k-1}), n = min(k, N) (SEED 2.4).
 
     ``tracked`` slots advance; ``restart`` (rise, slip, return after an outage) sets n = 1.
@@ -40,7 +43,7 @@ class SdfCode(AbstractPppMode):
     def update_memory(self, cfg, hatch, cmb, usable, restart):
         return hatch_update(cfg, hatch, cmb, usable, restart)
 
-    def rows(self, cfg, ctx):
+    def rows(self, cfg, ctx) -> list[RowBlock]:
         n = jnp.maximum(ctx.hatch.count, 1.0)
         frac = jnp.maximum(1.0 / jnp.sqrt(n), cfg.sdf_sigma_floor_fraction)
         var = (ctx.code_sigma * ctx.if_noise * frac) ** 2 + ctx.product_var

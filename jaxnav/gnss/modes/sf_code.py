@@ -21,7 +21,7 @@ class SfCode(AbstractPppMode):
     def clock_code(self, cmb):
         return cmb.code_corr_m[:, 0]
 
-    def rows(self, cfg, ctx):
+    def rows(self, cfg, ctx) -> list[RowBlock]:
         z = ctx.cmb.code_corr_m[:, 0] - ctx.obs.iono_model_l1_m
         var = ctx.code_sigma**2 + ctx.iono_var + ctx.product_var
         return [RowBlock(ctx.geo_pred - z, ctx.H_common, var, ctx.usable, KIND_CODE)]

@@ -22,6 +22,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
 
 from jaxnav.gnss.modes.base import AbstractPppMode, Block, RowBlock, per_slot_columns
 from jaxnav.gnss.modes.ic_ppp import (
@@ -47,20 +48,22 @@ class SfPpp(AbstractPppMode):
     def clock_code(self, cmb):
         return cmb.code_corr_m[:, 0]
 
-    def process_noise(self, cfg, layout, elevation, q):
+    def process_noise(self, cfg, layout, elevation: Float[Array, " S"],
+                      q: Float[Array, " n"]) -> Float[Array, " n"]:
         """Slant ionosphere: a random walk (S001 eqs 4-5); the ambiguities are constants."""
         return slant_iono_process_noise(cfg, layout, elevation, q)
 
     def reset_variance(self, cfg, obs, elevation):
         return slant_iono_reset_variance(cfg, obs, elevation)
 
-    def reset_values(self, cfg, layout, obs, cmb, restart, gnss_est):
+    def reset_values(self, cfg, layout, obs, cmb, restart: Bool[Array, " S"],
+                     gnss_est: Float[Array, " n"]) -> Float[Array, " n"]:
         """I = I_model, N1 = L1 - C1 + 2 I_model."""
         iono0 = obs.iono_model_l1_m
         new = {"iono": iono0, "amb1": obs.phase_m[:, 0] - cmb.code_corr_m[:, 0] + 2.0 * iono0}
         return restart_slots(layout, gnss_est, restart, new)
 
-    def rows(self, cfg, ctx):
+    def rows(self, cfg, ctx) -> list[RowBlock]:
         layout = ctx.layout
         S = ctx.usable.shape[0]
         iono = ctx.gnss_est[layout.sl("iono")]
