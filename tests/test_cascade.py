@@ -200,6 +200,15 @@ def test_tight_nhc_update_off_by_default_and_reduces_lateral_velocity(factory):
         d = np.asarray(attitude.wrap_angle(o.euler[:, 2] - p_off.truth.azimuth))
         return np.degrees(np.sqrt(np.mean(d[CONVERGED:] ** 2)))
 
+    # one joint update (core.rows): the two NHC rows are counted in every epoch's dof, never in
+    # the satellites or the per-kind GNSS counts (a slot-less row once marked the last slot)
+    moving = np.asarray(jnp.linalg.norm(p_off.truth.vel_enu, axis=1)) > 3.0
+    same_gnss = np.all(np.asarray(o_on.used_by_kind) == np.asarray(o_off.used_by_kind), axis=1)
+    assert same_gnss[moving].mean() > 0.9
+    np.testing.assert_array_equal(np.asarray(o_on.dof)[same_gnss],
+                                  np.asarray(o_off.dof)[same_gnss] + 2)
+    np.testing.assert_array_equal(np.asarray(o_on.n_sat)[same_gnss],
+                                  np.asarray(o_off.n_sat)[same_gnss])
     s_off, s_on = body_side_rms(o_off), body_side_rms(o_on)
     print(f"body lateral/vertical velocity RMS: {s_off:.4f} -> {s_on:.4f} m/s; azimuth RMS "
           f"{az_rms(o_off):.3f} -> {az_rms(o_on):.3f} deg")

@@ -1,9 +1,10 @@
 """Vehicle constraints and stationary updates for the full IMU: NHC, odometer, ZUPT, ZARU.
 
-Every builder returns measurement ``Rows`` (dz, H, R, mask) over a given state layout, with the
-jaxnav conventions of ``core/states.py``: dz = h(x_hat) - z, error = estimated - true, attitude
-error eps with C_hat = (I - [eps x]) C. They are pure functions of the navigation quantities, so
-the filters stack them with the GNSS rows and run one ``ekf.masked_update``.
+Every builder returns measurement ``Rows`` (``core/rows.py``, kind constraint) over a given
+state layout, with the jaxnav conventions of ``core/states.py``: dz = h(x_hat) - z, error =
+estimated - true, attitude error eps with C_hat = (I - [eps x]) C. They are pure functions of
+the navigation quantities, so the filters stack them with the GNSS rows and run one
+``ekf.masked_update``.
 
 Vehicle point. The non-holonomic constraint and the odometer refer to the vehicle's no-slip
 point (rear-axle centre, where the odometer speed is measured), at body offset ``lever_b`` from
@@ -70,6 +71,12 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from jaxnav import attitude, geodesy
+from jaxnav.core.rows import (  # noqa: F401  (stack_rows, sanitize: for the filters)
+    Rows,
+    constraint_rows,
+    sanitize,
+    stack_rows,
+)
 from jaxnav.core.states import StateLayout
 from jaxnav.ins import errors as ins_errors
 from jaxnav.ins import strapdown
@@ -77,46 +84,6 @@ from jaxnav.ins import strapdown
 #: Body axes of the NHC rows: x = lateral (right), z = up (S002 eq 4.27; y is forward).
 NHC_AXES = (0, 2)
 FORWARD_AXIS = 1
-
-
-class Rows(NamedTuple):
-    """Measurement rows: residual dz = h(x_hat) - z, H = d h / d(dx), noise R, and a mask."""
-
-    dz: jnp.ndarray  # [m]
-    H: jnp.ndarray  # [m, n]
-    R: jnp.ndarray  # [m, m]
-    mask: jnp.ndarray  # [m] bool
-
-    @property
-    def size(self) -> int:
-        return self.dz.shape[0]
-
-
-def stack_rows(*rows: Rows) -> Rows:
-    """Concatenate row blocks (block-diagonal R: the blocks' noises are independent)."""
-    dz = jnp.concatenate([r.dz for r in rows])
-    H = jnp.concatenate([r.H for r in rows], axis=0)
-    m = dz.shape[0]
-    R = jnp.zeros((m, m), dz.dtype)
-    start = 0
-    for r in rows:
-        k = r.size
-        R = R.at[start : start + k, start : start + k].set(r.R)
-        start += k
-    return Rows(dz, H, R, jnp.concatenate([r.mask for r in rows]))
-
-
-def sanitize(rows: Rows) -> Rows:
-    """Zero the residual and H of masked-out rows and give them unit variance, so that missing
-    inputs (NaN in a withheld epoch) cannot leak into the update or its diagnostics."""
-    m = rows.mask
-    pair = m[:, None] & m[None, :]
-    return Rows(
-        jnp.where(m, rows.dz, 0.0),
-        jnp.where(m[:, None], rows.H, 0.0),
-        jnp.where(pair, rows.R, 0.0) + jnp.diag(jnp.where(m, 0.0, 1.0)),
-        m,
-    )
 
 
 # ---- body velocity of the vehicle point -------------------------------------------------------
@@ -144,7 +111,7 @@ def nhc_rows(
     H = vehicle_velocity_jacobian(layout, llh, vel_enu, C_b_l, w_ib_b, lever_b)
     axes = jnp.array(NHC_AXES)
     sig = jnp.broadcast_to(jnp.asarray(sigma_m_s, jnp.float64), (2,))
-    return Rows(v_b[axes], H[axes], jnp.diag(sig**2), jnp.full(2, enabled, dtype=bool))
+    return constraint_rows(v_b[axes], H[axes], jnp.diag(sig**2), jnp.full(2, enabled))
 
 
 def odometer_rows(
@@ -172,19 +139,15 @@ def odometer_rows(
     if layout.has("odo_scale"):
         H = H.at[layout.i("odo_scale")].set(v_b[FORWARD_AXIS])
     sig = jnp.asarray(sigma_m_s, jnp.float64)
-    return Rows(
-        jnp.reshape(dz, (1,)),
-        H[None, :],
-        jnp.reshape(sig**2, (1, 1)),
-        jnp.full(1, enabled, dtype=bool),
-    )
+    return constraint_rows(jnp.reshape(dz, (1,)), H[None, :], jnp.reshape(sig**2, (1, 1)),
+                           jnp.full(1, enabled))
 
 
 def zupt_rows(layout: StateLayout, vel_enu, sigma_m_s=0.02, enabled=True) -> Rows:
     """Zero-velocity update (S002 eq 4.25-4.26): dz = v^l - 0, H = [0, I, 0]. Three rows."""
     H = jnp.zeros((3, layout.size), jnp.float64).at[:, layout.sl("vel")].set(jnp.eye(3))
     sig = jnp.broadcast_to(jnp.asarray(sigma_m_s, jnp.float64), (3,))
-    return Rows(jnp.asarray(vel_enu), H, jnp.diag(sig**2), jnp.full(3, enabled, dtype=bool))
+    return constraint_rows(vel_enu, H, jnp.diag(sig**2), jnp.full(3, enabled))
 
 
 def zaru_rows(layout: StateLayout, llh, C_b_l, w_mean_b, sigma_rad_s, enabled=True) -> Rows:
@@ -207,7 +170,7 @@ def zaru_rows(layout: StateLayout, llh, C_b_l, w_mean_b, sigma_rad_s, enabled=Tr
     if layout.has("gyro_scale"):
         H = H.at[:, layout.sl("gyro_scale")].set(jnp.diag(w_mean_b))
     sig = jnp.broadcast_to(jnp.asarray(sigma_rad_s, jnp.float64), (3,))
-    return Rows(dz, H, jnp.diag(sig**2), jnp.full(3, enabled, dtype=bool))
+    return constraint_rows(dz, H, jnp.diag(sig**2), jnp.full(3, enabled))
 
 
 # ---- stationarity detector --------------------------------------------------------------------

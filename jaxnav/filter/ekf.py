@@ -97,11 +97,12 @@ def masked_update(
     H: Float[Array, "m n"],
     R: Float[Array, "m m"],
     mask: Bool[Array, " m"],
-    gate: Float[ArrayLike, ""] = jnp.inf,
+    gate: Float[ArrayLike, ""] | Float[Array, " m"] = jnp.inf,
 ) -> UpdateResult:
     """Joseph-form update with masked, chi-square-gated rows.
 
-    nu = y - H x, S = H P H^T + R; row i is gated when nu_i^2 > gate * S_ii. With the used rows
+    nu = y - H x, S = H P H^T + R; row i is gated when nu_i^2 > gate * S_ii (``gate`` one
+    value or one per row). With the used rows
     selected, K = P H_u^T S_u^-1, x+ = x + K nu_u, P+ = (I - K H_u) P (I - K H_u)^T + K R_u K^T.
     Unused rows are zeroed in H and nu and decoupled in R (unit diagonal), which gives them zero
     gain without changing shapes. ``gate=inf`` disables gating.

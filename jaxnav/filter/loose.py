@@ -319,18 +319,14 @@ def _gnss_rows(lf: LooseFilter, layout, rx, fix: GnssFix):
     to_enu = jnp.array([[z, m_east, z], [m_north, z, z], [z, z, z + 1.0]])
     dllh = llh_ant - fix.llh
     dllh = dllh.at[1].set(attitude.wrap_angle(dllh[1]))
-    pos = cons.Rows(
-        to_enu @ dllh,
-        to_enu @ J_llh,
-        cfg.pos_cov_scale * fix.cov_pos_enu,
-        jnp.full(3, fix.pos_valid, dtype=bool),
+    pos = cons.constraint_rows(
+        to_enu @ dllh, to_enu @ J_llh, cfg.pos_cov_scale * fix.cov_pos_enu,
+        jnp.full(3, fix.pos_valid),
     )
     C_e_l = geodesy.C_l_e(llh_ant[0], llh_ant[1]).T
-    vel = cons.Rows(
-        C_e_l @ rx.vel_ecef - fix.vel_enu,
-        C_e_l @ rx.J_vel,
-        cfg.vel_cov_scale * fix.cov_vel_enu,
-        jnp.full(3, fix.vel_valid, dtype=bool),
+    vel = cons.constraint_rows(
+        C_e_l @ rx.vel_ecef - fix.vel_enu, C_e_l @ rx.J_vel, cfg.vel_cov_scale * fix.cov_vel_enu,
+        jnp.full(3, fix.vel_valid),
     )
     return pos, vel
 

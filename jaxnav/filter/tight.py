@@ -13,10 +13,11 @@ used row exceeds ``postfit_sigma``, that satellite (all its rows if it was a cod
 rejects the same satellite's phase and Doppler with its code) is removed and the update redone.
 
 Optional non-holonomic constraint (full-IMU ``InsSystem`` only; ``TightFilter.nhc_sigma_m_s``,
-off by default, and then the step is unchanged): after the GNSS update, a sequential update
-with the two NHC rows of ``filter.constraints.nhc_rows`` (lateral and vertical body velocity of
-the IMU = 0, S003 eq 8 / S002 eq 4.27-4.29 corrected), linearised at the same predicted state,
-prior mean the GNSS update's error estimate. Independent noise makes it the joint update.
+off by default, and then the step is unchanged): the two NHC rows of
+``filter.constraints.nhc_rows`` (lateral and vertical body velocity of the IMU = 0, S003 eq 8 /
+S002 eq 4.27-4.29 corrected), linearised at the predicted state, join the GNSS rows in the same
+masked update (one ``core.rows.Rows`` type). They are not gated and not tested post-fit (a
+vehicle model, not an observation); the epoch's NIS and dof include them.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxnav import geodesy
+from jaxnav.core import rows as core_rows
 from jaxnav.core.states import StateLayout
 from jaxnav.filter import constraints, ekf
 from jaxnav.filter.systems import AbstractNavSystem, NavSigmas
@@ -199,7 +201,8 @@ def _prefit_mask(cfg: ppp.PppConfig, rows: ppp.Rows) -> Bool[Array, " m"]:
     lockout = (jnp.sum(code_slot) >= MIN_PREFIT_SATELLITES) & (
         jnp.sum(code_slot & ~bad_slot) < MIN_PREFIT_SATELLITES
     )
-    return rows.mask & ~(bad_slot[rows.slot] & ~lockout)
+    bad_row = jnp.where(rows.slot >= 0, bad_slot[rows.slot], False)  # constraints: no slot
+    return rows.mask & ~(bad_row & ~lockout)
 
 
 def _clock_jump(
@@ -237,11 +240,15 @@ def _update_with_postfit(
     The satellite's phase stays: dropping it would restart a converged ambiguity."""
     n = P.shape[0]
     x0 = jnp.zeros(n)
-    first = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, mask, cfg.gate_chi2)
+    # constraint rows are neither gated nor tested post-fit: they are a vehicle model, not an
+    # observation that can be an outlier
+    gnss = rows.kind != core_rows.KIND_CONSTRAINT
+    gate = jnp.where(gnss, cfg.gate_chi2, jnp.inf)
+    first = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, mask, gate)
     if cfg.postfit_sigma is None:  # decided at trace time: a None field has no leaves
         return first
     resid = ekf.normalized_residuals(first.x, first.P, rows.dz, rows.H, rows.R)
-    score = jnp.where(first.used, jnp.abs(resid), 0.0)
+    score = jnp.where(first.used & gnss, jnp.abs(resid), 0.0)
     worst = jnp.argmax(score)
     reject = score[worst] > cfg.postfit_sigma
     is_code = rows.kind == ppp.KIND_CODE
@@ -249,27 +256,22 @@ def _update_with_postfit(
         is_code[worst], is_code & (rows.slot == rows.slot[worst]),
         jnp.arange(rows.dz.shape[0]) == worst,
     )
-    second = ekf.masked_update(
-        x0, P, rows.dz, rows.H, rows.R, first.used & ~(drop & reject), cfg.gate_chi2
-    )
+    second = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, first.used & ~(drop & reject),
+                               gate)
     return jax.tree.map(lambda a, b: jnp.where(reject, b, a), first, second)
 
 
-def _nhc_update(
-    tf: TightFilter, layout: StateLayout, nav, res: ekf.UpdateResult
-) -> ekf.UpdateResult:
-    """Sequential NHC update (module docstring) of the GNSS update's (x, P); the GNSS
-    diagnostics (used rows, NIS, dof) are kept. The body rate at t_k is the last compensated
-    sample's (as in ``loose``); the IMU is taken to be at the vehicle's no-slip point."""
+def _nhc_rows(tf: TightFilter, layout: StateLayout, nav) -> core_rows.Rows:
+    """The two NHC rows (module docstring) at the predicted state. The body rate at t_k is the
+    last compensated sample's (as in ``loose``); the IMU is taken to be at the vehicle's
+    no-slip point."""
     if not layout.has("att"):
         raise ValueError("the tight NHC update needs a full-IMU system (attitude states)")
     state, last = nav.state, nav.prev
     w_now_b = last.dtheta_b / tf.imu_dt_s
-    rows = constraints.nhc_rows(
+    return constraints.nhc_rows(
         layout, state.llh, state.vel_enu, state.C_b_l, w_now_b, jnp.zeros(3), tf.nhc_sigma_m_s
     )
-    upd = ekf.masked_update(res.x, res.P, rows.dz, rows.H, rows.R, rows.mask)
-    return res._replace(x=upd.x, P=upd.P)
 
 
 def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, EpochOutput]:
@@ -293,11 +295,11 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
     rows, _ = ppp.measurement_rows(
         cfg, layout, tf.slots, inp.obs, rx, gnss_est, inp.keep, hatch, inp.day_of_year
     )
+    if tf.nhc_sigma_m_s is not None:  # the constraint joins the same update (module docstring)
+        rows = core_rows.stack_rows(rows, _nhc_rows(tf, layout, nav))
     gnss_est, P, rows = _clock_jump(cfg, layout, gnss_est, P, rows)
     mask = _prefit_mask(cfg, rows)
     res = _update_with_postfit(cfg, P, rows, mask)
-    if tf.nhc_sigma_m_s is not None:
-        res = _nhc_update(tf, layout, nav, res)
 
     nav, sensors = tf.system.feedback(nav, carry.sensors, res.x, layout)
     gnss_est = gnss_est - jnp.where(jnp.arange(layout.size) >= tf.system.layout.size, res.x, 0.0)
@@ -305,7 +307,7 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
         for name in ("clock_bias", "clock_drift"):
             gnss_est = gnss_est.at[layout.i(name)].add(-res.x[layout.i(name)])
 
-    used_slot = jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(res.used)
+    used_slot = jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(res.used & (rows.slot >= 0))
     if cfg.uses_phase:
         phase_used = (
             jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(res.used & (rows.kind == ppp.KIND_PHASE))
@@ -322,8 +324,11 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
         nis=res.nis,
         dof=res.dof,
         n_sat=jnp.sum(used_slot),
-        used_by_kind=jnp.zeros(4, int).at[rows.kind].add(res.used.astype(int)),
-        gated_by_kind=jnp.zeros(4, int).at[rows.kind].add((rows.mask & ~res.used).astype(int)),
+        # the GNSS kinds only (constraint rows, kind 4, are dropped from the counts)
+        used_by_kind=jnp.zeros(core_rows.N_GNSS_KINDS, int).at[rows.kind].add(
+            res.used.astype(int), mode="drop"),
+        gated_by_kind=jnp.zeros(core_rows.N_GNSS_KINDS, int).at[rows.kind].add(
+            (rows.mask & ~res.used).astype(int), mode="drop"),
         clock_bias_m=gnss_est[layout.i("clock_bias")] if layout.has("clock_bias") else 0.0,
     )
     el_mem = jnp.where(usable, el, carry.elevation)

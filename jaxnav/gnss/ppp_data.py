@@ -12,6 +12,13 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Real
 
+from jaxnav.core.rows import (  # noqa: F401  (the filters' one row type, re-exported)
+    KIND_CODE,
+    KIND_DOPPLER,
+    KIND_IONO,
+    KIND_PHASE,
+    Rows,
+)
 from jaxnav.gnss import models, signals
 
 
@@ -93,15 +100,3 @@ class Receiver(NamedTuple):
     J_vel: Float[Array, "3 n"]  # d(vel_ecef)/d(dx)
 
 
-class Rows(NamedTuple):
-    """Stacked measurement rows of one epoch: residual dz = h(x_hat) - z, H, R, mask."""
-
-    dz: Float[Array, " m"]
-    H: Float[Array, "m n"]
-    R: Float[Array, "m m"]
-    mask: Bool[Array, " m"]
-    slot: Int[Array, " m"]  # slot of each row (-1 for none)
-    kind: Int[Array, " m"]  # 0 code, 1 phase, 2 Doppler, 3 ionosphere pseudo-observation
-
-
-KIND_CODE, KIND_PHASE, KIND_DOPPLER, KIND_IONO = 0, 1, 2, 3
