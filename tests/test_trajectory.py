@@ -9,6 +9,7 @@ import pytest
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import attitude, geodesy
+from jaxnav.sim import drives
 from jaxnav.sim import trajectory as tr
 
 RATE_HZ = 100.0
@@ -22,13 +23,13 @@ def _enu_error(llh_a, llh_b):
 @pytest.fixture(scope="module")
 def urban():
     """10 min of urban stop-and-go (sharp 90 deg turns, stops) at 100 Hz."""
-    return tr.generate_truth(tr.random_drive(3, "urban", TEN_MIN), RATE_HZ, duration_s=TEN_MIN)
+    return tr.generate_truth(drives.random_drive(3, "urban", TEN_MIN), RATE_HZ, duration_s=TEN_MIN)
 
 
 @pytest.fixture(scope="module")
 def airborne():
     """10 min of seed-001-like flight (45-50 m/s, banked turns, climbs) at 100 Hz."""
-    return tr.generate_truth(tr.random_airborne(1, TEN_MIN), RATE_HZ, duration_s=TEN_MIN)
+    return tr.generate_truth(drives.random_airborne(1, TEN_MIN), RATE_HZ, duration_s=TEN_MIN)
 
 
 @pytest.fixture(scope="module")
@@ -206,7 +207,7 @@ def test_angular_rate_matches_attitude_derivative(scripted):
 
 # ---- generators and helpers --------------------------------------------------------------------
 def test_random_mixed_drive_is_s000_like():
-    segs = tr.random_drive_segments(np.random.default_rng(0), "mixed", 2400.0)
+    segs = drives.random_drive_segments(np.random.default_rng(0), "mixed", 2400.0)
     profile = tr.compile_profile(segs)
     truth = tr.generate_truth(profile, 10.0)  # coarse rate: only kinematics are checked here
     kmh = np.asarray(truth.odo_speed_mps) * 3.6
@@ -221,7 +222,7 @@ def test_random_mixed_drive_is_s000_like():
     assert codes == {int(e) for e in tr.Event}
     assert h.max() - h.min() < 100.0
     # Reproducible from the seed.
-    again = tr.random_drive_segments(np.random.default_rng(0), "mixed", 2400.0)
+    again = drives.random_drive_segments(np.random.default_rng(0), "mixed", 2400.0)
     assert again == segs
 
 

@@ -23,7 +23,7 @@ from jaxnav.core import gpstime
 from jaxnav.gnss import corrections, models, ppp, signals
 from jaxnav.gnss.ppp_data import EpochInput
 from jaxnav.ins import riss, strapdown
-from jaxnav.sim import constellation, observations, sensors, trajectory
+from jaxnav.sim import constellation, drives, observations, sensors, trajectory
 
 
 class ScenarioConfig(eqx.Module):
@@ -87,9 +87,9 @@ def build_geometry(cfg: ScenarioConfig, profile: trajectory.Profile | None = Non
     seeded random drive of ``cfg.drive_style`` / ``cfg.drive_seed``.
     """
     if profile is None and cfg.drive_style == "airborne":
-        profile = trajectory.random_airborne(cfg.drive_seed, cfg.duration_s)
+        profile = drives.random_airborne(cfg.drive_seed, cfg.duration_s)
     elif profile is None:
-        profile = trajectory.random_drive(cfg.drive_seed, cfg.drive_style, cfg.duration_s)
+        profile = drives.random_drive(cfg.drive_seed, cfg.drive_style, cfg.duration_s)
     truth = trajectory.generate_truth(profile, cfg.imu_rate_hz, cfg.duration_s)
     truth_ep = trajectory.truth_at_epochs(truth, cfg.epoch_interval_s)
     lever = jnp.asarray(cfg.lever_b_m, jnp.float64)
