@@ -185,6 +185,7 @@ class NumpyTightFilter:
     prefit_code_m: float
     gate_chi2: float
     postfit_sigma: float
+    postfit_passes: int
     clock_bias_psd: float
     clock_drift_psd: float
     zwd_psd: float
@@ -245,6 +246,7 @@ class NumpyTightFilter:
             prefit_code_m=float(cfg.prefit_code_m),
             gate_chi2=float(cfg.gate_chi2),
             postfit_sigma=float(cfg.postfit_sigma),
+            postfit_passes=int(cfg.postfit_passes),
             clock_bias_psd=float(cfg.clock_bias_psd_m2_s),
             clock_drift_psd=float(cfg.clock_drift_psd_m2_s3),
             zwd_psd=float(cfg.zwd_psd_m2_s),
@@ -282,8 +284,12 @@ def _process_model(nf: NumpyTightFilter, llh, vel, C, f_b):
 
 
 def _propagate_covariance(nf: NumpyTightFilter, P, F, Qg):
-    """ekf.discretize_taylor + ekf.predict: P <- Phi P Phi^T + Qd (symmetrised)."""
-    Phi, Qd = nn.discretize_taylor(F, Qg, nf.epoch_dt_s)
+    """tight._propagate_covariance: the INS block by ekf.discretize (3 squarings), the GNSS
+    block by its series alone; P <- Phi P Phi^T + Qd (symmetrised)."""
+    k = nf.layout.i("clock_bias")  # the INS states precede the GNSS blocks
+    Phi, Qd = np.zeros_like(F), np.zeros_like(F)
+    Phi[:k, :k], Qd[:k, :k] = nn.discretize(F[:k, :k], Qg[:k, :k], nf.epoch_dt_s)
+    Phi[k:, k:], Qd[k:, k:] = nn.discretize(F[k:, k:], Qg[k:, k:], nf.epoch_dt_s, squarings=0)
     P = Phi @ P @ Phi.T + Qd
     return 0.5 * (P + P.T)
 
@@ -406,19 +412,27 @@ def _masked_update(P, y, H, r_var, mask, gate):
 
 
 def _update_with_postfit(nf: NumpyTightFilter, P, dz, H, r_var, mask, slot, kind):
-    """tight._update_with_postfit: one update; if the worst normalised post-fit residual of the
-    used rows exceeds the threshold, drop it (for a code row: its slot's code rows) and redo."""
+    """tight._update_with_postfit: one update, then up to ``postfit_passes`` times: if the worst
+    normalised post-fit residual (covariance R - H P+ H^T, untestable rows 0) of the used rows
+    exceeds the threshold, drop it (a code row: every row of its slot) and redo. Also returns
+    the slots dropped for a code outlier."""
     x, P1, used, nis = _masked_update(P, dz, H, r_var, mask, nf.gate_chi2)
-    resid = (dz - H @ x) / np.sqrt(np.einsum("ij,jk,ik->i", H, P1, H) + r_var)
-    score = np.where(used, np.abs(resid), 0.0)
-    worst = int(np.argmax(score))
-    if score[worst] > nf.postfit_sigma:
+    dropped = np.zeros(nf.n_slots, bool)
+    for _ in range(nf.postfit_passes):
+        c = r_var - np.einsum("ij,jk,ik->i", H, P1, H)
+        testable = c > 1e-6 * r_var
+        resid = np.where(testable, (dz - H @ x) / np.sqrt(np.where(testable, c, 1.0)), 0.0)
+        score = np.where(used, np.abs(resid), 0.0)
+        worst = int(np.argmax(score))
+        if score[worst] <= nf.postfit_sigma:
+            break
         if kind[worst] == KIND_CODE:
-            drop = (slot == slot[worst]) & (kind == KIND_CODE)
+            drop = slot == slot[worst]
+            dropped[slot[worst]] = True
         else:
             drop = np.arange(dz.size) == worst
         x, P1, used, nis = _masked_update(P, dz, H, r_var, used & ~drop, nf.gate_chi2)
-    return x, P1, used, nis
+    return x, P1, used, nis, dropped
 
 
 def _median_code(dz, is_code):
@@ -524,7 +538,7 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     if code_slot.sum() < n_min or (code_slot & ~bad_slot).sum() >= n_min:
         mask = mask & ~bad_slot[slot]
 
-    x, P, used, nis = _update_with_postfit(nf, P, dz, H, r_var, mask, slot, kind)
+    x, P, used, nis, dropped = _update_with_postfit(nf, P, dz, H, r_var, mask, slot, kind)
 
     # Closed-loop feedback (errors.feedback, errors.feedback_sensors) and GNSS totals.
     llh = llh - x[L.sl("pos")]
@@ -536,6 +550,7 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
 
     tracked = np.zeros(S, bool)
     tracked[slot[used & (kind == KIND_PHASE)]] = True
+    tracked |= dropped & st["tracked"] & ~ep["slip"]  # a post-fit outlier is not a slip
     new = dict(
         llh=llh, vel=vel, q=q, prev_dth=dth[-1], prev_dv=dv[-1],
         accel_bias=accel_bias, gyro_bias=gyro_bias,

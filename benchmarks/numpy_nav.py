@@ -379,6 +379,22 @@ def antenna_lever_arm(llh, vel, C, w_ib_b, lever_b):
     return llh_ant, vel_ant, J_llh, J_vel
 
 
+def discretize(F, Qg, dt, squarings=3):
+    """ekf.discretize: third-order series for Phi and Qd over dt / 2^k, then k doublings
+    Qd <- Phi Qd Phi^T + Qd, Phi <- Phi Phi (symmetrised)."""
+    h = dt / 2**squarings
+    A = F * h
+    A2 = A @ A
+    Phi = np.eye(F.shape[0]) + A + A2 / 2.0 + A2 @ A / 6.0
+    AQ = A @ Qg
+    AAQ = A @ AQ
+    Qd = h * (Qg + 0.5 * (AQ + AQ.T) + (AAQ + AAQ.T + 2.0 * AQ @ A.T) / 6.0)
+    for _ in range(squarings):
+        Qd = Phi @ Qd @ Phi.T + Qd
+        Phi = Phi @ Phi
+    return Phi, 0.5 * (Qd + Qd.T)
+
+
 def discretize_taylor(F, Qg, dt):
     """ekf.discretize_taylor: Phi = I + F dt + (F dt)^2 / 2, Qd = (Phi Qg Phi^T + Qg) dt / 2
     (symmetrised)."""

@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -53,6 +54,38 @@ def test_van_loan_matches_closed_forms():
     )
     np.testing.assert_allclose(Phi[0, 0], np.exp(-dt / tau), rtol=1e-13)
     np.testing.assert_allclose(Qd[0, 0], sigma**2 * (1 - np.exp(-2 * dt / tau)), rtol=1e-12)
+
+
+def test_filter_discretisation_is_exact_where_taylor_was_not():
+    """Issue 16, defects 3 and 5. ``ekf.discretize`` (the filters' step): the integrated
+    random walk of the receiver clock gets the bias variance q dt^3 / 3 (a single trapezoidal
+    Taylor step gives dt^3 / 2, +50 %), and a Gauss-Markov state with beta dt = 1 (RISS16's
+    velocity terms at 1 Hz) gets Phi = exp(-1) and Qd = sigma^2 (1 - exp(-2)) (Taylor: 0.5 and
+    +54 %); a random stiff-ish 12-state system agrees with Van Loan."""
+    F = jnp.array([[0.0, 1.0], [0.0, 0.0]])
+    G = jnp.array([[0.0], [1.0]])
+    q, dt = 0.3, 1.0
+    closed = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+    Phi, Qd = ekf.discretize(F, G, jnp.array([[q]]), dt)
+    np.testing.assert_allclose(Phi, [[1.0, dt], [0.0, 1.0]], atol=1e-14)
+    np.testing.assert_allclose(Qd, closed, rtol=1e-12)
+    _, Qd_t = ekf.discretize_taylor(F, G, jnp.array([[q]]), dt)
+    assert float(Qd_t[0, 0]) == pytest.approx(1.5 * closed[0, 0])  # the defect, for the record
+    beta, sigma = 1.0, 0.4
+    args = (jnp.array([[-beta]]), jnp.eye(1), jnp.array([[2 * beta * sigma**2]]), dt)
+    Phi, Qd = ekf.discretize(*args)
+    assert float(Phi[0, 0]) == pytest.approx(np.exp(-beta * dt), rel=1e-4)
+    assert float(Qd[0, 0]) == pytest.approx(sigma**2 * (1 - np.exp(-2 * beta * dt)), rel=1e-3)
+    Phi_t, _ = ekf.discretize_taylor(*args)
+    assert float(Phi_t[0, 0]) == pytest.approx(0.5)
+    rng = np.random.default_rng(2)
+    F = jnp.array(rng.normal(scale=0.3, size=(12, 12)))
+    G = jnp.array(rng.normal(size=(12, 4)))
+    Qc = jnp.diag(jnp.array([0.1, 0.2, 0.3, 0.4]))
+    Phi_v, Qd_v = ekf.discretize_van_loan(F, G, Qc, 1.0)
+    Phi, Qd = ekf.discretize(F, G, Qc, 1.0)
+    assert np.abs(Phi - Phi_v).max() < 1e-3 * np.abs(Phi_v).max()
+    assert np.abs(Qd - Qd_v).max() < 1e-3 * np.abs(Qd_v).max()
 
 
 def test_taylor_agrees_with_van_loan_for_small_F_dt():

@@ -159,3 +159,28 @@ def test_ic_ppp_gim_is_a_reset_prior_by_default_and_a_row_per_epoch_on_request()
     assert kinds["prior"] == 0 and kinds["epoch"] == int(np.sum(np.asarray(obs.available)))
     with pytest.raises(ValueError, match="iono_constraint"):
         ppp.PppConfig(mode="ic_ppp", iono_constraint="sometimes")
+
+
+def test_ic_ppp_ambiguity_reset_includes_the_receiver_dcb():
+    """Issue 16, defect 7. With the codes modelled as P_b = rho + g_b I + c_b DCB (c = beta,
+    -alpha) and the phases as L_b = rho - g_b I + N_b, the reset N_b = L_b - P_b + 2 g_b I +
+    c_b DCB makes a restarted slot's phase residual equal its code residual on each band, for
+    any geometry and any current DCB estimate (without the DCB term they differ by c_b DCB)."""
+    obs, slots = _sky()
+    _, system, nav, mean = _systems()[1]
+    cfg = ppp.PppConfig(mode="ic_ppp", n_slots=S, systems=(signals.SYS_GPS, signals.SYS_GAL),
+                        elevation_mask_rad=0.0)
+    tf = tight.TightFilter(system, cfg, slots, 0.01, 1.0)
+    layout = tf.layout
+    rx = system.antenna(nav, mean, system.zero_sensors(), layout)
+    est0 = jnp.zeros(layout.size).at[layout.i("dcb")].set(1.7)
+    keep, hatch = jnp.ones(S, bool), ppp.HatchState.empty(S)
+    _, el = ppp.measurement_rows(cfg, layout, slots, obs, rx, est0, keep, hatch, 180.0)
+    est, _ = tight._reset_slots(tf, layout, est0, jnp.eye(layout.size), obs, jnp.ones(S, bool),
+                                el)
+    rows, _ = ppp.measurement_rows(cfg, layout, slots, obs, rx, est, keep, hatch, 180.0)
+    dz = np.asarray(rows.dz).reshape(-1, S)  # code 1, code 2, phase 1, phase 2 blocks
+    kind = np.asarray(rows.kind).reshape(-1, S)[:, 0]
+    assert list(kind[:4]) == [ppp.KIND_CODE, ppp.KIND_CODE, ppp.KIND_PHASE, ppp.KIND_PHASE]
+    np.testing.assert_allclose(dz[2], dz[0], atol=1e-6)
+    np.testing.assert_allclose(dz[3], dz[1], atol=1e-6)

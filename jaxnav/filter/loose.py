@@ -25,7 +25,8 @@ make the epochs shorter and mark the in-between GNSS fixes invalid.
 
 Covariance propagation: F is evaluated ``cov_substeps`` times per epoch (on equal chunks of the
 samples, each with its own mechanized state and mean inputs) and discretised with
-``ekf.discretize_taylor``; more substeps follow the attitude through sharp turns.
+``ekf.discretize`` (its third-order series; no squarings: the INS has ||F dt|| << 1 over a
+substep); more substeps follow the attitude through sharp turns.
 
 In-motion alignment (``align_from_gnss``): the heading is the course over ground of the GNSS
 velocity, atan2(v_E, v_N), which assumes no side slip and the IMU forward axis along the vehicle's
@@ -301,7 +302,7 @@ def _propagate_covariance(lf: LooseFilter, layout, nav, mean_inputs, sensors, P,
         Qc = Qc.at[m, m].set(lf.cfg.odo_scale_rw**2)
     else:
         F, G, Qc = F_s, G_s, Qc_s
-    Phi, Qd = ekf.discretize_taylor(F, G, Qc, dt)
+    Phi, Qd = ekf.discretize(F, G, Qc, dt, squarings=0)  # INS: ||F dt|| << 1 per substep
     _, P = ekf.predict(jnp.zeros(n), P, Phi, Qd)
     return P
 

@@ -8,9 +8,11 @@ the epochs. Everything is a pure function of (carry, inputs), so a batch of scen
 
 Outlier control (S002 §5.3): a coarse pre-fit test on code residuals (after removing their
 common median, so a clock jump or a drift after an outage is not mistaken for an outlier), a
-chi-square gate on each innovation, and a normalised post-fit residual test: when the worst
-used row exceeds ``postfit_sigma``, that satellite (all its rows if it was a code row, as S002
-rejects the same satellite's phase and Doppler with its code) is removed and the update redone.
+chi-square gate on each innovation, and a normalised post-fit residual test (covariance
+R - H P+ H^T), repeated ``postfit_passes`` times: when the worst used row exceeds
+``postfit_sigma``, it is removed (a code row takes every row of its satellite with it, as S002
+rejects the same satellite's phase and Doppler with its code) and the update redone; the
+satellite's ambiguity is kept (an outlier is not a slip).
 
 Optional non-holonomic constraint (full-IMU ``InsSystem`` only; ``TightFilter.nhc_sigma_m_s``,
 off by default, and then the step is unchanged): the two NHC rows of
@@ -134,18 +136,21 @@ def initial_carry(
 def _propagate_covariance(
     tf: TightFilter, layout: StateLayout, carry: Carry, nav, mean_inputs
 ) -> Float[Array, "n n"]:
-    """P <- Phi P Phi^T + Qd for the joint navigation + GNSS error model over one epoch."""
+    """P <- Phi P Phi^T + Qd for the joint navigation + GNSS error model over one epoch.
+
+    The two blocks are independent (no F or noise couples them) and discretised apart: the
+    system's by ``ekf.discretize`` with its squarings (RISS16's Gauss-Markov velocity terms have
+    beta dt = 1), the GNSS block's (clock bias' = drift, random walks) exactly by its
+    third-order series alone (nilpotent F)."""
     n_sys = tf.system.layout.size
     n = layout.size
     F_sys, G_sys, Qc_sys = tf.system.dynamics(nav, mean_inputs, carry.sensors)
     F_g, q_g = ppp.gnss_dynamics(tf.cfg, layout, carry.elevation, skip=tf.system.layout.names)
-    F = F_g.at[:n_sys, :n_sys].set(F_sys)
-    m_sys = G_sys.shape[1]
-    G = jnp.zeros((n, m_sys + n)).at[:n_sys, :m_sys].set(G_sys)
-    G = G.at[:, m_sys:].set(jnp.eye(n))
-    Qc = jnp.zeros((m_sys + n, m_sys + n)).at[:m_sys, :m_sys].set(Qc_sys)
-    Qc = Qc.at[m_sys:, m_sys:].set(jnp.diag(q_g))
-    Phi, Qd = ekf.discretize_taylor(F, G, Qc, tf.epoch_dt_s)
+    Phi_s, Qd_s = ekf.discretize(F_sys, G_sys, Qc_sys, tf.epoch_dt_s)
+    Phi_g, Qd_g = ekf.discretize(F_g[n_sys:, n_sys:], jnp.eye(n - n_sys), jnp.diag(q_g[n_sys:]),
+                                 tf.epoch_dt_s, squarings=0)
+    Phi = jax.scipy.linalg.block_diag(Phi_s, Phi_g)
+    Qd = jax.scipy.linalg.block_diag(Qd_s, Qd_g)
     _, P = ekf.predict(jnp.zeros(n), carry.P, Phi, Qd)
     return P
 
@@ -234,31 +239,35 @@ def _clock_jump(
 
 def _update_with_postfit(
     cfg: ppp.PppConfig, P: Float[Array, "n n"], rows: ppp.Rows, mask: Bool[Array, " m"]
-) -> ekf.UpdateResult:
-    """Masked update; if the worst normalised post-fit residual exceeds the threshold, drop it
-    (for a code row: every code row of its satellite) and update again from the same prior.
-    The satellite's phase stays: dropping it would restart a converged ambiguity."""
+) -> tuple[ekf.UpdateResult, Bool[Array, " S"]]:
+    """Masked update, then up to ``postfit_passes`` times: if the worst normalised post-fit
+    residual (``ekf.normalized_residuals``) exceeds the threshold, drop it and update again
+    from the same prior. A code outlier drops every row of its satellite (S002 5.3: its phase
+    and Doppler go with it); another row only itself. Returns the update and the slots whose
+    rows were dropped (their ambiguities are kept: an outlier is not a slip)."""
     n = P.shape[0]
     x0 = jnp.zeros(n)
     # constraint rows are neither gated nor tested post-fit: they are a vehicle model, not an
     # observation that can be an outlier
     gnss = rows.kind != core_rows.KIND_CONSTRAINT
     gate = jnp.where(gnss, cfg.gate_chi2, jnp.inf)
-    first = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, mask, gate)
+    res = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, mask, gate)
+    dropped = jnp.zeros(cfg.n_slots, bool)
     if cfg.postfit_sigma is None:  # decided at trace time: a None field has no leaves
-        return first
-    resid = ekf.normalized_residuals(first.x, first.P, rows.dz, rows.H, rows.R)
-    score = jnp.where(first.used & gnss, jnp.abs(resid), 0.0)
-    worst = jnp.argmax(score)
-    reject = score[worst] > cfg.postfit_sigma
+        return res, dropped
     is_code = rows.kind == ppp.KIND_CODE
-    drop = jnp.where(
-        is_code[worst], is_code & (rows.slot == rows.slot[worst]),
-        jnp.arange(rows.dz.shape[0]) == worst,
-    )
-    second = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, first.used & ~(drop & reject),
-                               gate)
-    return jax.tree.map(lambda a, b: jnp.where(reject, b, a), first, second)
+    for _ in range(cfg.postfit_passes):
+        resid = ekf.normalized_residuals(res.x, res.P, rows.dz, rows.H, rows.R)
+        score = jnp.where(res.used & gnss, jnp.abs(resid), 0.0)
+        worst = jnp.argmax(score)
+        reject = score[worst] > cfg.postfit_sigma
+        drop = jnp.where(is_code[worst], rows.slot == rows.slot[worst],
+                         jnp.arange(rows.dz.shape[0]) == worst) & gnss
+        again = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, res.used & ~(drop & reject),
+                                  gate)
+        res = jax.tree.map(lambda a, b, r=reject: jnp.where(r, b, a), res, again)
+        dropped = dropped.at[rows.slot[worst]].max(reject & is_code[worst])
+    return res, dropped
 
 
 def _nhc_rows(tf: TightFilter, layout: StateLayout, nav) -> core_rows.Rows:
@@ -299,7 +308,7 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
         rows = core_rows.stack_rows(rows, _nhc_rows(tf, layout, nav))
     gnss_est, P, rows = _clock_jump(cfg, layout, gnss_est, P, rows)
     mask = _prefit_mask(cfg, rows)
-    res = _update_with_postfit(cfg, P, rows, mask)
+    res, dropped = _update_with_postfit(cfg, P, rows, mask)
 
     nav, sensors = tf.system.feedback(nav, carry.sensors, res.x, layout)
     gnss_est = gnss_est - jnp.where(jnp.arange(layout.size) >= tf.system.layout.size, res.x, 0.0)
@@ -308,13 +317,19 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
             gnss_est = gnss_est.at[layout.i(name)].add(-res.x[layout.i(name)])
 
     used_slot = jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(res.used & (rows.slot >= 0))
-    if cfg.uses_phase:
-        phase_used = (
-            jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(res.used & (rows.kind == ppp.KIND_PHASE))
-        )
-        tracked = phase_used
-    else:
-        tracked = usable
+    phase_used = (
+        jnp.zeros(cfg.n_slots, bool).at[rows.slot].max(res.used & (rows.kind == ppp.KIND_PHASE))
+    )
+    if cfg.bssd:
+        # Between-satellite differences have no row of the reference satellite, yet its
+        # observations are in every differenced row: it is used (and its ambiguity tracked)
+        # whenever any row is. Without this its ambiguity restarted every epoch (issue 16).
+        ref = ppp.reference_slot(tf.slots, el, usable)
+        used_slot = used_slot.at[ref].max(jnp.any(used_slot))
+        phase_used = phase_used.at[ref].max(jnp.any(phase_used))
+    # a satellite removed by the post-fit test keeps its ambiguity (not a slip)
+    tracked = (phase_used | (dropped & carry.tracked & ~inp.obs.slip)) if cfg.uses_phase \
+        else usable
     k = nav_block_size(layout)
     out = EpochOutput(
         llh=tf.system.llh(nav),

@@ -88,6 +88,9 @@ class PppConfig(eqx.Module):
     # S002: normalised post-fit residual threshold. None: no post-fit test (one update per
     # epoch instead of two; roofline.py measures what the second update costs).
     postfit_sigma: float | None = 3.0
+    # post-fit passes: each removes the worst outlier and redoes the update (S002 5.3 repeats
+    # the test until none is left; 2 bounds the cost: chosen)
+    postfit_passes: int = eqx.field(static=True, default=2)
     # Process noise.
     clock_bias_psd_m2_s: float = _CLOCK_K * geodesy.C_LIGHT**2 * _CLOCK_H0 / 2.0  # S001 eq 16
     clock_drift_psd_m2_s3: float = 2.0 * _CLOCK_K * jnp.pi**2 * geodesy.C_LIGHT**2 * _CLOCK_H_M2
@@ -221,7 +224,8 @@ def _block_value(layout, gnss_est, name, default=0.0):
     return gnss_est[layout.i(name)] if layout.has(name) else jnp.asarray(default)
 
 
-def _reference_slot(slots: SlotInfo, elevation, usable):
+def reference_slot(slots: SlotInfo, elevation: Float[Array, " S"],
+                   usable: Bool[Array, " S"]) -> Int[Array, ""]:
     """Highest-elevation usable GPS slot (S004 uses a GPS reference satellite)."""
     score = jnp.where(usable & (slots.system == signals.SYS_GPS), elevation, -10.0)
     return jnp.argmax(score)
@@ -322,7 +326,7 @@ def measurement_rows(
         blocks.append((pred - obs.range_rate_m_s, H, var, usable, KIND_DOPPLER))
 
     if cfg.bssd:
-        ref = _reference_slot(slots, el, usable)
+        ref = reference_slot(slots, el, usable)
         diffed = []
         for dz, H, var, mask, kind in blocks:
             dz, H, R, mask = _difference(dz, H, var, mask, ref)

@@ -97,13 +97,16 @@ class IcPpp(AbstractPppMode):
 
     def reset_values(self, cfg, layout, obs, cmb, restart: Bool[Array, " S"],
                      gnss_est: Float[Array, " n"]) -> Float[Array, " n"]:
-        """I = I_model; N1 = L1 - P1 + 2 I, N2 = L2 - P2 + 2 gamma I (code and phase
-        ionosphere of opposite sign)."""
+        """I = I_model; N1 = L1 - P1 + 2 I + beta DCB, N2 = L2 - P2 + 2 gamma I - alpha DCB
+        (code and phase ionosphere of opposite sign; the codes carry the receiver DCB as in
+        ``rows``, the current estimate is used)."""
         iono0 = obs.iono_model_l1_m
+        dcb = gnss_est[layout.i("dcb")]
         new = {
             "iono": iono0,
-            "amb1": obs.phase_m[:, 0] - cmb.code_corr_m[:, 0] + 2.0 * iono0,
-            "amb2": obs.phase_m[:, 1] - cmb.code_corr_m[:, 1] + 2.0 * cmb.gamma * iono0,
+            "amb1": obs.phase_m[:, 0] - cmb.code_corr_m[:, 0] + 2.0 * iono0 + cmb.beta * dcb,
+            "amb2": (obs.phase_m[:, 1] - cmb.code_corr_m[:, 1] + 2.0 * cmb.gamma * iono0
+                     - cmb.alpha * dcb),
         }
         return restart_slots(layout, gnss_est, restart, new)
 
