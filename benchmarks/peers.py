@@ -518,8 +518,8 @@ class NumpyLooseIns15:
             f_b, w_b = v_c.sum(0) / span, th_c.sum(0) / span
             C = nn.dcm_from_quat(q)
             F, G = self.dynamics(llh, vel, C, f_b, w_b)
-            # ekf.discretize_taylor: second-order Phi, trapezoidal Qd.
-            Phi, Qd = nn.discretize_taylor(F, (G * self.qc) @ G.T, span)
+            # ekf.discretize as loose.py uses it: third-order series, no squarings.
+            Phi, Qd = nn.discretize(F, (G * self.qc) @ G.T, span, squarings=0)
             dz, H, R = self.rows(llh, vel, C, prev_th / dt, fix_llh[e], fix_vel[e])
             dx, P = self._filter(P, Phi, Qd, dz, H, R, bool(valid[e]))
             llh = llh - dx[0:3]
