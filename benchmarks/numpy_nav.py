@@ -393,12 +393,3 @@ def discretize(F, Qg, dt, squarings=3):
         Qd = Phi @ Qd @ Phi.T + Qd
         Phi = Phi @ Phi
     return Phi, 0.5 * (Qd + Qd.T)
-
-
-def discretize_taylor(F, Qg, dt):
-    """ekf.discretize_taylor: Phi = I + F dt + (F dt)^2 / 2, Qd = (Phi Qg Phi^T + Qg) dt / 2
-    (symmetrised)."""
-    Fdt = F * dt
-    Phi = np.eye(F.shape[0]) + Fdt + 0.5 * Fdt @ Fdt
-    Qd = 0.5 * (Phi @ Qg @ Phi.T + Qg) * dt
-    return Phi, 0.5 * (Qd + Qd.T)

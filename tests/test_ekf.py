@@ -184,7 +184,7 @@ def test_vmap_equals_python_loop():
 
 def test_covariance_stays_symmetric_psd_over_1e5_random_steps():
     F, G, Qc = _cv_system(q=0.01)
-    Phi, Qd = ekf.discretize_taylor(jnp.array(F), jnp.array(G), jnp.array(Qc), 1.0)
+    Phi, Qd = ekf.discretize(jnp.array(F), jnp.array(G), jnp.array(Qc), 1.0)
     H = jnp.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])
     R = jnp.diag(jnp.array([1e-4, 1e4, 1e-6, 1.0]))  # badly scaled on purpose
     steps = 100_000

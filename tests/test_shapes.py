@@ -36,7 +36,7 @@ def test_correctly_shaped_calls_pass():
     res = ekf.masked_update(x, P, y, H, R, mask, ekf.CHI2_1DOF_999)
     assert res.x.shape == (N,) and res.P.shape == (N, N) and res.used.shape == (M,)
     F, G, Qc = jnp.eye(N) * 0.01, jnp.ones((N, 2)), jnp.eye(2)
-    Phi, Qd = ekf.discretize_taylor(F, G, Qc, 1.0)
+    Phi, Qd = ekf.discretize(F, G, Qc, 1.0)
     x2, P2 = ekf.predict(x, P, Phi, Qd)
     assert x2.shape == (N,) and P2.shape == (N, N)
     nav = strapdown.nav_state(LLH, jnp.zeros(3), jnp.zeros(3))

@@ -51,7 +51,7 @@ def discretize_taylor(
     """Second-order transition and trapezoidal noise: Phi = I + F dt + (F dt)^2 / 2,
     Qd = (Phi G Qc G^T Phi^T + G Qc G^T) dt / 2.
 
-    The filters' step until issue 16 (kept for the peers benchmark and as a reference): it
+    The filters' step until issue 16, kept as the reference the tests compare against: it
     assumes ||F dt|| << 1, which RISS16's Gauss-Markov velocity terms (beta dt = 1 at 1 Hz)
     break, and its trapezoidal Qd gives an integrated random walk dt^3 / 2 instead of dt^3 / 3.
     The filters use ``discretize``.
