@@ -173,6 +173,8 @@ class NumpyTightFilter:
     accel_bias_tau_s: np.ndarray
     gyro_bias_sigma: np.ndarray
     gyro_bias_tau_s: np.ndarray
+    accel_gm_share: np.ndarray  # errors.gm_share: drift part of a lumped bias correction
+    gyro_gm_share: np.ndarray
     # PPP configuration (gnss/ppp.PppConfig)
     n_slots: int
     alpha: np.ndarray  # [S] IF coefficients
@@ -235,6 +237,9 @@ class NumpyTightFilter:
             accel_bias_tau_s=triad(m.accel_bias_tau_s),
             gyro_bias_sigma=triad(m.gyro_bias_sigma_rad_s),
             gyro_bias_tau_s=triad(m.gyro_bias_tau_s),
+            # INS15 lumps turn-on + drift: the drift share of a correction by prior variances
+            accel_gm_share=_share(m.accel_bias_sigma_m_s2, m.accel_bias_ton_sigma_m_s2),
+            gyro_gm_share=_share(m.gyro_bias_sigma_rad_s, m.gyro_bias_ton_sigma_rad_s),
             n_slots=int(cfg.n_slots),
             alpha=f1**2 / d,
             beta=-(f2**2) / d,
@@ -462,6 +467,12 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
 
     F, Qg = _process_model(nf, llh, vel, C, f_b)
     P = _propagate_covariance(nf, st["P"], F, Qg)
+    # InsSystem.predict_sensors (errors.decay): the filter's Gauss-Markov bias shares decay.
+    fa = np.exp(-nf.epoch_dt_s / nf.accel_bias_tau_s)
+    fg = np.exp(-nf.epoch_dt_s / nf.gyro_bias_tau_s)
+    accel_bias = st["accel_bias"] - (1.0 - fa) * st["accel_bias_gm"]
+    gyro_bias = st["gyro_bias"] - (1.0 - fg) * st["gyro_bias_gm"]
+    accel_gm, gyro_gm = fa * st["accel_bias_gm"], fg * st["gyro_bias_gm"]
     gnss = st["gnss"].copy()
     gnss[i_clk] += gnss[i_drift] * nf.epoch_dt_s
 
@@ -544,8 +555,10 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     llh = llh - x[L.sl("pos")]
     vel = vel - x[L.sl("vel")]
     q = nn.quat_normalize(nn.quat_mul(nn.quat_from_rotvec(x[L.sl("att")]), q))
-    accel_bias = st["accel_bias"] + (1.0 + st["accel_scale"]) * x[L.sl("accel_bias")]
-    gyro_bias = st["gyro_bias"] + (1.0 + st["gyro_scale"]) * x[L.sl("gyro_bias")]
+    d_accel = (1.0 + st["accel_scale"]) * x[L.sl("accel_bias")]
+    d_gyro = (1.0 + st["gyro_scale"]) * x[L.sl("gyro_bias")]
+    accel_bias, accel_gm = accel_bias + d_accel, accel_gm + nf.accel_gm_share * d_accel
+    gyro_bias, gyro_gm = gyro_bias + d_gyro, gyro_gm + nf.gyro_gm_share * d_gyro
     gnss[nf.n_sys :] -= x[nf.n_sys :]
 
     tracked = np.zeros(S, bool)
@@ -553,13 +566,19 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     tracked |= dropped & st["tracked"] & ~ep["slip"]  # a post-fit outlier is not a slip
     new = dict(
         llh=llh, vel=vel, q=q, prev_dth=dth[-1], prev_dv=dv[-1],
-        accel_bias=accel_bias, gyro_bias=gyro_bias,
+        accel_bias=accel_bias, gyro_bias=gyro_bias, accel_bias_gm=accel_gm, gyro_bias_gm=gyro_gm,
         accel_scale=st["accel_scale"], gyro_scale=st["gyro_scale"],
         gnss=gnss, P=P, tracked=tracked, elevation=np.where(usable, el, st["elevation"]),
     )
     euler = nn.euler_from_dcm(nn.dcm_from_quat(q))
     out = (llh, vel, euler, P[: nf.n_nav, : nf.n_nav], nis, int(used.sum()), gnss[i_clk])
     return new, out
+
+
+def _share(sigma_gm, sigma_ton):
+    var_gm = np.broadcast_to(np.asarray(sigma_gm, float), (3,)) ** 2
+    var = var_gm + np.broadcast_to(np.asarray(sigma_ton, float), (3,)) ** 2
+    return np.where(var > 0.0, var_gm / np.where(var > 0.0, var, 1.0), 1.0)
 
 
 def _to_numpy(tree):
@@ -584,6 +603,7 @@ def run(nf: NumpyTightFilter, carry0, inputs, strapdown: str = "scalar") -> dict
     st = dict(
         llh=nav.llh, vel=nav.vel_enu, q=nav.q_b_l, prev_dth=prev.dtheta_b, prev_dv=prev.dv_b,
         accel_bias=sens.accel_bias_m_s2, gyro_bias=sens.gyro_bias_rad_s,
+        accel_bias_gm=sens.accel_bias_gm_m_s2, gyro_bias_gm=sens.gyro_bias_gm_rad_s,
         accel_scale=sens.accel_scale, gyro_scale=sens.gyro_scale,
         gnss=c.gnss_est, P=c.P, tracked=c.tracked.astype(bool), elevation=c.elevation,
     )

@@ -450,6 +450,10 @@ class NumpyLooseIns15:
         self.dt = float(lf.imu_dt_s)
         self.lever_b = np.asarray(lf.system.lever_b, float)
         self.tau_a, self.tau_g = tri(m.accel_bias_tau_s), tri(m.gyro_bias_tau_s)
+        # errors.gm_share (INS15 lumps turn-on + drift): the drift share of a bias correction
+        var_a, var_g = tri(m.accel_bias_sigma_m_s2) ** 2, tri(m.gyro_bias_sigma_rad_s) ** 2
+        self.share_a = var_a / (var_a + tri(m.accel_bias_ton_sigma_m_s2) ** 2)
+        self.share_g = var_g / (var_g + tri(m.gyro_bias_ton_sigma_rad_s) ** 2)
         self.qc = np.concatenate(
             [
                 tri(m.accel_vrw_m_s_sqrt_s) ** 2,
@@ -505,6 +509,7 @@ class NumpyLooseIns15:
         P = np.array(P0, float)
         prev_th, prev_v = np.zeros(3), np.zeros(3)
         ba, bg = np.zeros(3), np.zeros(3)
+        ba_gm, bg_gm = np.zeros(3), np.zeros(3)  # their Gauss-Markov shares
         dt = self.dt
         n_ep, k_imu = dth.shape[:2]
         span = dt * k_imu
@@ -520,12 +525,17 @@ class NumpyLooseIns15:
             F, G = self.dynamics(llh, vel, C, f_b, w_b)
             # ekf.discretize as loose.py uses it: third-order series, no squarings.
             Phi, Qd = nn.discretize(F, (G * self.qc) @ G.T, span, squarings=0)
+            # the bias estimates decay like the Gauss-Markov model (InsSystem.predict_sensors)
+            fa, fg = np.exp(-span / self.tau_a), np.exp(-span / self.tau_g)
+            ba, bg = ba - (1.0 - fa) * ba_gm, bg - (1.0 - fg) * bg_gm
+            ba_gm, bg_gm = fa * ba_gm, fg * bg_gm
             dz, H, R = self.rows(llh, vel, C, prev_th / dt, fix_llh[e], fix_vel[e])
             dx, P = self._filter(P, Phi, Qd, dz, H, R, bool(valid[e]))
             llh = llh - dx[0:3]
             vel = vel - dx[3:6]
             q = nn.quat_normalize(nn.quat_mul(nn.quat_from_rotvec(dx[6:9]), q))
             ba, bg = ba + dx[9:12], bg + dx[12:15]
+            ba_gm, bg_gm = ba_gm + self.share_a * dx[9:12], bg_gm + self.share_g * dx[12:15]
             out["llh"][e], out["vel"][e] = llh, vel
             out["euler"][e] = nn.euler_from_dcm(nn.dcm_from_quat(q))
             out["P_nav"][e], out["ba"][e], out["bg"][e] = P[:9, :9], ba, bg

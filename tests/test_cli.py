@@ -114,3 +114,25 @@ def test_demo_table_matches_its_golden(tmp_path, goldens):
     assert cli.main(["demo", "--out", str(out)]) == 0
     goldens.check("demo", goldens.numbers_in(out)
                   | goldens.table_numbers((out / "table.md").read_text(), "table.md"))
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--freq", "single"], "the C/A code needs the satellites' P1-C1 biases (expected --dcb FILE"),
+    (["--freq", "single", "--ionex", "x.i", "--sp3", "x.sp3"],
+     "--freq single needs the broadcast group delays (TGD / BGD) (expected --nav)"),
+    (["--freq", "single", "--sp3", "x.sp3", "--no-p1c1"],
+     "sf_code needs a model ionosphere (expected --nav (Klobuchar) or --ionex)"),
+    (["--freq", "dual", "--no-p1c1"], "are for --freq single"),
+])
+def test_ppp_bad_options_exit_2_before_reading(extra, message, capsys, tmp_path):
+    """``jaxnav ppp``: a missing product or P1-C1 choice is one line and exit 2, found before
+    any file is read (the observation file here does not exist)."""
+    from jaxnav.apps import ppp as app
+
+    args = ["--obs", str(tmp_path / "none.rnx"), "--mode", "static", "--out",
+            str(tmp_path / "o.pos"), *extra]
+    if "--nav" not in extra and "--sp3" not in extra:
+        args += ["--nav", str(tmp_path / "none.nav")]
+    assert app.main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err

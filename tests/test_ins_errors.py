@@ -170,6 +170,8 @@ def test_linear_model_predicts_mechanized_error_growth():
         jnp.array([2.5e-6, -5e-6, 3.75e-6]),
         jnp.array([2.5e-4, -5e-4, 1.25e-4]),
         jnp.array([7.5e-4, 2.5e-4, -5e-4]),
+        jnp.zeros(3),  # (the filter's Gauss-Markov shares: not used by corrupt / correct)
+        jnp.zeros(3),
     )
     meas = errors.corrupt_imu(imu, sensor, dt)
     seq = strapdown.ImuIncrements(*(jnp.tile(a, (n, 1)) for a in meas))
@@ -298,6 +300,8 @@ def test_sensor_feedback_and_imu_compensation():
         jnp.array([1e-3, -2e-3, 5e-4]),
         jnp.array([0.01, -0.02, 0.005]),
         jnp.array([-0.01, 0.03, 0.002]),
+        jnp.zeros(3),
+        jnp.zeros(3),
     )
     meas = errors.corrupt_imu(true_imu, raw, dt)
     # Inverse model recovers the true increments.
@@ -312,6 +316,8 @@ def test_sensor_feedback_and_imu_compensation():
         jnp.array([0.0, -1e-3, 1e-3]),
         jnp.array([0.0, -0.01, 0.0]),
         jnp.array([-0.02, 0.0, 0.001]),
+        jnp.zeros(3),
+        jnp.zeros(3),
     )
     used = errors.correct_imu(meas, est, dt)
 
@@ -337,5 +343,11 @@ def test_sensor_feedback_and_imu_compensation():
         dx = dx.at[layout.sl("accel_scale")].set(ds_a)
         dx = dx.at[layout.sl("gyro_scale")].set(ds_g)
         new = errors.feedback_sensors(est, dx, layout)
-        for got, want in zip(new, raw, strict=True):
+        for got, want in zip(new[:4], raw[:4], strict=True):  # the total errors
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-13)
+        # the Gauss-Markov shares take the drift blocks' part only (the one errors.decay decays)
+        share_a, share_g = (0.3, 0.6) if layout.has("accel_bias_ton") else (1.0, 1.0)
+        np.testing.assert_allclose(new.accel_bias_gm_m_s2, share_a * (raw.accel_bias_m_s2
+                                   - est.accel_bias_m_s2), rtol=1e-9, atol=1e-13)
+        np.testing.assert_allclose(new.gyro_bias_gm_rad_s, share_g * (raw.gyro_bias_rad_s
+                                   - est.gyro_bias_rad_s), rtol=1e-9, atol=1e-13)

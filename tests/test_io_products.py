@@ -23,6 +23,7 @@ from jaxnav.io import (
     orbit_table,
     read_broadcast_ephemeris,
     read_clk,
+    read_code_dcb,
     read_ionex,
     read_rinex_obs,
     read_sp3,
@@ -624,3 +625,38 @@ def test_receiver_clock_consistent_across_satellites(grg):
         f"above 15 deg: max {max(spreads):.1f} m"
     )
     assert max(spreads) < 30.0  # troposphere + ionosphere differences, not km-level errors
+
+
+DCB_TEXT = """CODE'S 30-DAY GNSS P1-C1 DCB SOLUTION, ENDING DAY 177, 2020      26-JUN-20 07:24
+--------------------------------------------------------------------------------
+
+DIFFERENTIAL (P1-C1) CODE BIASES FOR SATELLITES AND RECEIVERS:
+
+PRN / STATION NAME        VALUE (NS)  RMS (NS)
+***   ****************    *****.***   *****.***
+
+G01                          -0.716     0.011
+G02                           1.250     0.010
+R03                          -0.100     0.020
+G    ALGO 40104M001          -8.123     0.045
+"""
+
+
+def test_code_dcb_file_in_metres_stations_skipped(tmp_path):
+    """CODE's P1-C1 table: satellite rows in ns -> metres (x c 1e-9), station rows skipped."""
+    path = write(tmp_path, DCB_TEXT.splitlines(), "P1C12006.DCB")
+    got = read_code_dcb(path)
+    assert set(got) == {"G01", "G02", "R03"}
+    assert got["G01"] == pytest.approx(-0.716e-9 * C_LIGHT, rel=1e-12)
+    assert got["G02"] == pytest.approx(0.3747, abs=1e-4)  # 1.25 ns
+
+
+@pytest.mark.parametrize("edit, where", [
+    (lambda t: t.replace("-0.716", "-0.7x6"), "line 9"),
+    (lambda t: t.replace("G02   ", "G01   "), "line 10"),
+    (lambda t: t.replace("***   ****************    *****.***   *****.***\n", ""), "ruler"),
+])
+def test_code_dcb_damaged_names_the_line(tmp_path, edit, where):
+    path = write(tmp_path, edit(DCB_TEXT).splitlines(), "bad.DCB")
+    with pytest.raises(InputError, match=where):
+        read_code_dcb(path)

@@ -30,11 +30,13 @@ def test_mode_without_rows_fails_when_defined():
             name: ClassVar[str] = "no_rows"
             uses_phase: ClassVar[bool] = False
             single_frequency: ClassVar[bool] = False
+            uses_iono_model: ClassVar[bool] = False
             blocks: ClassVar[tuple] = ()
 
 
 def test_mode_without_a_declaration_fails_when_defined():
-    with pytest.raises(TypeError, match="does not define single_frequency, blocks"):
+    missing = "single_frequency, uses_iono_model, blocks"
+    with pytest.raises(TypeError, match=f"does not define {missing}"):
 
         class Undeclared(AbstractPppMode):
             name: ClassVar[str] = "undeclared"
@@ -49,6 +51,7 @@ def test_block_naming_no_config_sigma_fails_with_the_config():
         name: ClassVar[str] = "typo"
         uses_phase: ClassVar[bool] = True
         single_frequency: ClassVar[bool] = False
+        uses_iono_model: ClassVar[bool] = False
         blocks: ClassVar[tuple] = (Block("amb", True, "ambiguity_sigma_m"),)
 
         def rows(self, cfg, ctx):

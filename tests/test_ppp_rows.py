@@ -45,6 +45,8 @@ def _sky():
         code_bias_m=jnp.zeros((S, 2)),
         iono_model_l1_m=jnp.linspace(1.0, 4.0, S),
         sat=sat,
+        doppler_ok=jnp.ones(S, bool),
+        iono_model_ok=jnp.ones(S, bool),
     )
     f = signals.carrier_frequency_hz(jnp.zeros(S, jnp.int32), 0), signals.carrier_frequency_hz(
         jnp.zeros(S, jnp.int32), 1
@@ -184,3 +186,35 @@ def test_ic_ppp_ambiguity_reset_includes_the_receiver_dcb():
     assert list(kind[:4]) == [ppp.KIND_CODE, ppp.KIND_CODE, ppp.KIND_PHASE, ppp.KIND_PHASE]
     np.testing.assert_allclose(dz[2], dz[0], atol=1e-6)
     np.testing.assert_allclose(dz[3], dz[1], atol=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["sf_code", "sf_ppp", "ic_ppp", "float_ppp", "df_code"])
+def test_missing_doppler_or_model_ionosphere_gives_no_row_never_a_zero(mode):
+    """Issue 16, defect 2. A slot whose Doppler was not measured has no Doppler row (not a
+    0 m/s one); a slot without a model ionosphere is not used by a mode that needs the model
+    (its rows would take a zero delay: metres of error) and is used as before by one that
+    does not."""
+    obs, slots = _sky()
+    _, system, nav, mean = _systems()[1]
+    cfg = ppp.PppConfig(mode=mode, n_slots=S, systems=(signals.SYS_GPS, signals.SYS_GAL),
+                        elevation_mask_rad=0.0, doppler=True)
+    tf = tight.TightFilter(system, cfg, slots, 0.01, 1.0)
+    rx = system.antenna(nav, mean, system.zero_sensors(), tf.layout)
+    keep, hatch = jnp.ones(S, bool), ppp.HatchState.empty(S)
+    lacking = jnp.asarray(np.arange(S) == 2)
+    holes = obs._replace(doppler_ok=~lacking, iono_model_ok=~jnp.roll(lacking, 1))
+    est = jnp.zeros(tf.layout.size)
+    full, _ = ppp.measurement_rows(cfg, tf.layout, slots, obs, rx, est, keep, hatch, 180.0)
+    got, _ = ppp.measurement_rows(cfg, tf.layout, slots, holes, rx, est, keep, hatch, 180.0)
+    kind = np.asarray(got.kind).reshape(-1, S)[:, 0]
+    m_full = np.asarray(full.mask).reshape(-1, S)
+    m_got = np.asarray(got.mask).reshape(-1, S)
+    assert np.all(m_full)  # every row of the complete sky is used
+    dop = kind == ppp.KIND_DOPPLER
+    assert dop.sum() == 1
+    model_needed = ppp_modes.REGISTRY[mode].uses_iono_model
+    want = np.ones_like(m_got)
+    if model_needed:
+        want[:, 3] = False  # the slot without a model ionosphere: none of its rows
+    want[dop, 2] = False  # the slot without Doppler: no Doppler row, its other rows kept
+    np.testing.assert_array_equal(m_got, want)

@@ -20,7 +20,6 @@ from jaxnav.attitude import dcm_from_euler, wrap_angle
 from jaxnav.core.states import RISS9, RISS16
 from jaxnav.ins.riss import (
     RissInput,
-    RissSensorErrors,
     average_inputs,
     riss_inputs_from_imu,
     riss_rate,
@@ -505,9 +504,8 @@ def test_closed_loop_feedback_recovers_the_truth(layout, dynamics):
     d_az, d_bz, d_v = 2e-3, 2e-4, 0.15
     est0 = riss_state_from(ref0.llh + d_llh, ref0.azimuth + d_az, 15.0 + d_v)
     # Estimated errors: gyro bias wrong by +d_bz; odometer scale -d_v/15 (used speed too high).
-    errs = RissSensorErrors(
-        jnp.asarray(d_bz), jnp.zeros(2), jnp.asarray(-d_v / 15.0), jnp.asarray(0.0)
-    )
+    errs = zero_sensor_errors()._replace(gyro_bias_z_rad_s=jnp.asarray(d_bz),
+                                         odo_scale=jnp.asarray(-d_v / 15.0))
     dx0 = jnp.zeros(layout.size)
     dx0 = dx0.at[layout.sl("pos")].set(d_llh).at[layout.sl("vel")].set(est0.vel_enu - ref0.vel_enu)
     dx0 = dx0.at[layout.i("azimuth")].set(d_az).at[layout.i("gyro_bias_z")].set(d_bz)
@@ -560,7 +558,7 @@ def test_feedback_of_riss16_roll_pitch_and_accelerometer_biases():
     inputs = _synthetic_inputs(2, dt)
     ref0 = riss_state_from(LLH0, 0.4, 15.0)
     d_b = jnp.array([0.02, -0.03])  # estimated - true accelerometer bias [m/s^2]
-    errs = RissSensorErrors(jnp.asarray(0.0), d_b, jnp.asarray(0.0), jnp.asarray(0.0))
+    errs = zero_sensor_errors()._replace(accel_bias_xy_m_s2=d_b)
     first = jax.tree.map(lambda x: x[:1], inputs)
     est, _ = _run(ref0, first, dt, errs)
     ref, _ = _run(ref0, first, dt)

@@ -167,7 +167,7 @@ def test_up_gyro_bias_gives_linear_heading_drift():
     dt, n = 0.02, 30_000  # 10 min
     nav0 = strapdown.nav_state(LLH45, jnp.zeros(3), jnp.radians(jnp.array([0, 0, 30.0])))
     imu = strapdown.stationary_imu(LLH45, nav0.C_b_l, dt)
-    bias = errors.SensorErrors(jnp.zeros(3), jnp.array([0.0, 0.0, b]), jnp.zeros(3), jnp.zeros(3))
+    bias = errors.SensorErrors.zeros()._replace(gyro_bias_rad_s=jnp.array([0.0, 0.0, b]))
     seq = _tile(errors.corrupt_imu(imu, bias, dt), n)
     _, hist = jax.jit(lambda a, s: strapdown.mechanize(a, s, dt))(nav0, seq)
     az = jax.vmap(attitude.euler_from_quat)(hist.q_b_l)[:, 2]
@@ -186,7 +186,7 @@ def test_east_gyro_bias_gives_closed_form_north_error():
     dt, n = 0.02, 60_000
     nav0 = strapdown.nav_state(LLH45, jnp.zeros(3), jnp.zeros(3))
     imu = strapdown.stationary_imu(LLH45, nav0.C_b_l, dt)
-    bias = errors.SensorErrors(jnp.zeros(3), jnp.array([b, 0.0, 0.0]), jnp.zeros(3), jnp.zeros(3))
+    bias = errors.SensorErrors.zeros()._replace(gyro_bias_rad_s=jnp.array([b, 0.0, 0.0]))
     seq = _tile(errors.corrupt_imu(imu, bias, dt), n)
     _, hist = jax.jit(lambda a, s: strapdown.mechanize(a, s, dt))(nav0, seq)
     r_m, _ = geodesy.radii(LLH45[0])

@@ -2,7 +2,8 @@
 
     jaxnav ppp --obs OBS --nav NAV [--sp3 F ...] [--clk F] [--ionex F]
                --mode static|kinematic --freq single|dual [--phase] [--systems G,R,E]
-               [--start ISO --duration S] [--ref X,Y,Z] --out OUT.pos
+               [--start ISO --duration S] [--ref X,Y,Z]
+               [--dcb P1C1.DCB | --p1c1-from-obs | --no-p1c1] --out OUT.pos
 
 The forward filter is ``filter/tight.py``'s epoch step driven by a GNSS-only system
 (``filter/ppp_only.py``): the same measurement models, slot resets, gating and outputs as the
@@ -12,7 +13,10 @@ C1 code with the broadcast Klobuchar (or ``--ionex``) ionosphere and the broadca
 (``sf_code``, S000 / S002 ch. 4); ``--freq single --phase`` adds the L1 carrier phase with
 a float ambiguity and a slant-ionosphere state per satellite (``sf_ppp``, S002 ch. 4; its
 slips come from the receiver's loss-of-lock indicators only, as the geometry-free and
-Melbourne-Wuebbena tests need two frequencies). ``--mode static`` keeps the position a random
+Melbourne-Wuebbena tests need two frequencies). Single frequency levels the GPS/GLONASS C/A
+code to P1 with the satellites' P1-C1 biases (the clocks refer to P1/P2): one of ``--dcb``
+(CODE file), ``--p1c1-from-obs`` (the file's own C1W - C1C) or ``--no-p1c1`` is required.
+``--mode static`` keeps the position a random
 constant, ``--mode kinematic`` makes it a random walk of 100 m/sqrt(s) (S002 §5.2.3). Without
 ``--sp3`` the broadcast orbits and clocks are used.
 
@@ -51,7 +55,7 @@ from jaxnav.io import pos as pos_io
 from jaxnav.io import prepare as prep_mod
 from jaxnav.io.errors import InputError
 from jaxnav.io.nav import read_broadcast_ephemeris
-from jaxnav.io.products import read_clk, read_ionex, read_sp3
+from jaxnav.io.products import read_clk, read_code_dcb, read_ionex, read_sp3
 from jaxnav.io.rinex import read_rinex_obs
 
 #: Receiver-clock bias PSD [m^2/s] (chosen): 1e4 m^2/s is a 550 m 1-sigma step per 30 s epoch,
@@ -114,6 +118,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="use one-sided SP3 interpolation at the table ends (else no orbit there)",
     )
+    p1c1 = p.add_mutually_exclusive_group()
+    p1c1.add_argument("--dcb", help="CODE P1-C1 DCB file: levels the C/A code of --freq single "
+                      "to P1, as the clocks expect")
+    p1c1.add_argument("--p1c1-from-obs", action="store_true",
+                      help="measure the satellites' P1-C1 from the file's own C1W - C1C")
+    p1c1.add_argument("--no-p1c1", action="store_true",
+                      help="use the C/A code as P1 (accepts up to ~1 m of satellite bias)")
     p.add_argument("--out", required=True, help="output RTKLIB .pos file")
     return p
 
@@ -276,6 +287,20 @@ def _main(args, argv, t_start) -> int:
     mode = _ppp_mode(args)  # before any file is read
     if not args.sp3 and args.nav is None:
         raise InputError("orbits are needed", expected="--sp3 files and/or --nav")
+    if ppp_modes.get(mode).uses_iono_model and not (args.nav or args.ionex):
+        raise InputError(f"{mode} needs a model ionosphere",
+                         expected="--nav (Klobuchar) or --ionex")
+    if args.freq == "single" and args.nav is None:
+        raise InputError("--freq single needs the broadcast group delays (TGD / BGD)",
+                         expected="--nav")
+    single_gps = args.freq == "single" and any(s in prep_mod.P1_CODES for s in args.systems)
+    if single_gps and not (args.dcb or args.p1c1_from_obs or args.no_p1c1):
+        raise InputError("--freq single: the C/A code needs the satellites' P1-C1 biases",
+                         expected="--dcb FILE, --p1c1-from-obs or --no-p1c1")
+    if args.freq == "dual" and (args.dcb or args.p1c1_from_obs or args.no_p1c1):
+        raise InputError("--dcb / --p1c1-from-obs / --no-p1c1 are for --freq single",
+                         expected="no P1-C1 option with --freq dual (P1/P2 are read)")
+    p1c1_m = read_code_dcb(args.dcb) if args.dcb else None
     window = _time_window(args)
     opt = prep_mod.PrepareOptions(
         freq=args.freq,
@@ -284,16 +309,20 @@ def _main(args, argv, t_start) -> int:
         apply_windup=not args.no_windup,
         apply_tides=not args.no_tides,
         sp3_one_sided=args.sp3_one_sided,
+        p1c1_m=p1c1_m,
+        ignore_p1c1=args.no_p1c1,
     )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
         obs = read_rinex_obs(
             args.obs,
-            prep_mod.rinex_requests(args.freq, args.systems),
+            prep_mod.rinex_requests(args.freq, args.systems, p1_codes=args.p1c1_from_obs),
             tlim=window,
             on_missing="nan",
             indicators=True,
         )
+    if args.p1c1_from_obs:
+        opt.p1c1_m = prep_mod.p1c1_from_observations(obs)
     nav = (
         read_broadcast_ephemeris(args.nav, systems="".join(args.systems)) if args.nav else None
     )
@@ -351,6 +380,15 @@ def _main(args, argv, t_start) -> int:
         f"LLI {prep.slip_counts['lli']}, GF {prep.slip_counts['gf']}, "
         f"MW {prep.slip_counts['mw']}"
     )
+    lost = {k: v for k, v in prep.lost_counts.items() if v and (
+        k != "no_iono_model" or ppp_modes.get(mode).uses_iono_model) and k != "no_doppler"}
+    if lost:
+        print("  unusable slot-epochs: " + ", ".join(f"{k.replace('_', ' ')} {v}"
+                                                     for k, v in lost.items()))
+    if args.freq == "single":
+        src = ("CODE DCB file" if args.dcb else "measured C1W - C1C" if args.p1c1_from_obs
+               else "NOT applied (--no-p1c1)")
+        print(f"  C/A P1-C1 bias : {src}")
     x, y, z = final_ecef
     t_last = gps_seconds_to_datetime64(prep.time_gps_s[k_last])
     print(f"  final position (last epoch with satellites, {t_last} GPST):")

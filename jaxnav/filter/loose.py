@@ -427,6 +427,8 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
         return (nav, P), mean
 
     (nav, P), means = jax.lax.scan(substep, (carry.nav, carry.P), chunks)
+    # x_hat <- Phi x_hat for the sensor estimates: Gauss-Markov shares decay (issue 16, defect 4)
+    carry = carry._replace(sensors=system.predict_sensors(carry.sensors, dt_sub * n_sub))
     f_mean_b, w_mean_b = jax.tree.map(lambda a: a.mean(0), means)  # epoch means (equal chunks)
     state, last = nav.state, nav.prev
     w_now_b = last.dtheta_b / lf.imu_dt_s  # rate at t_k - dt/2 for the lever-arm terms

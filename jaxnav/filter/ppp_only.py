@@ -128,6 +128,9 @@ class GnssOnlySystem(AbstractNavSystem):
             vel = vel - dx[layout_full.sl("vel")]
         return GnssNav(llh, vel), sensors
 
+    def predict_sensors(self, sensors, dt):
+        return sensors  # no sensors
+
     def initial_std(self, nav: GnssNav, sig: NavSigmas) -> Float[Array, " n"]:
         std = jnp.zeros(self.layout.size)
         std = std.at[self.layout.sl("pos")].set(sig.pos_m / geodesy.metres_per_radian(nav.llh))

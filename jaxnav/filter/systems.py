@@ -43,6 +43,12 @@ class NavSigmas(eqx.Module):
     gyro_calibration_s: float | None = None
 
 
+def nav_block_size(layout: StateLayout) -> int:
+    """Size of the leading navigation block (pos, vel and attitude / azimuth) for outputs."""
+    names = [n for n in ("pos", "vel", "att", "azimuth") if layout.has(n)]
+    return max(layout.sl(n).stop for n in names)
+
+
 def _pos_std_llh(llh, sigma_m):
     """Geodetic 1-sigma (rad, rad, m) of an isotropic sigma_m [m] at ``llh``."""
     return sigma_m / geodesy.metres_per_radian(llh)
@@ -95,6 +101,11 @@ class AbstractNavSystem(eqx.Module):
         """Closed loop: (nav, sensors) corrected by the estimated errors, x <- x_hat - dx_hat."""
 
     @abc.abstractmethod
+    def predict_sensors(self, sensors, dt):
+        """Sensor-error estimates dt later, as the error model predicts them (x_hat <- Phi x_hat:
+        Gauss-Markov shares decay with their tau, constants stay)."""
+
+    @abc.abstractmethod
     def initial_std(self, nav, sig: NavSigmas):
         """[layout.size] initial standard deviations of the error states."""
 
@@ -117,6 +128,12 @@ class AbstractNavSystem(eqx.Module):
     @abc.abstractmethod
     def euler(self, nav):
         """[3] (roll, pitch, azimuth) [rad]."""
+
+    def nav_covariance(self, nav, P, layout_full: StateLayout):
+        """Covariance of the output (pos, vel, attitude) over the leading navigation block:
+        T P T^T with T the outputs' Jacobian w.r.t. the error state (here the block itself)."""
+        k = nav_block_size(layout_full)
+        return P[:k, :k]
 
     def calibrate_static(self, nav, samples, dt):
         """Sensor-error estimates from a standstill with known attitude (systems with sensors)."""
@@ -251,6 +268,15 @@ class RissSystem(AbstractNavSystem):
         J = jnp.zeros((3, layout_full.size)).at[:, : self.layout.size].set(M)
         return J.at[:, layout_full.sl("vel")].add(jnp.eye(3))
 
+    def nav_covariance(self, nav: riss.RissState, P, layout_full: StateLayout):
+        """The output velocity is v_od u(A, p) re-derived at every input, so its error is
+        dx[vel] + M dx (class doc), not dx[vel] alone: T P T^T with T's velocity rows the
+        ``_velocity_jacobian`` (P[vel, vel] alone was ~1e6 x too small, issue 16)."""
+        k = nav_block_size(layout_full)
+        T = jnp.eye(layout_full.size)[:k]
+        T = T.at[layout_full.sl("vel")].set(self._velocity_jacobian(nav, layout_full))
+        return T @ P @ T.T
+
     def C_b_l(self, nav: riss.RissState):
         return attitude.dcm_from_euler(jnp.stack([nav.roll, nav.pitch, nav.azimuth]))
 
@@ -281,6 +307,9 @@ class RissSystem(AbstractNavSystem):
         new_nav, new_sensors = riss_errors.riss_feedback(nav, dx, layout_full, sensors)
         M = self._velocity_jacobian(nav, layout_full).at[:, layout_full.sl("vel")].set(0.0)
         return new_nav._replace(vel_enu=new_nav.vel_enu - M @ dx), new_sensors
+
+    def predict_sensors(self, sensors: riss.RissSensorErrors, dt):
+        return riss_errors.decay_sensor_errors(sensors, self.params, self.layout, dt)
 
     def initial_std(self, nav: riss.RissState, sig: NavSigmas):
         p = self.params
@@ -378,8 +407,14 @@ class InsSystem(AbstractNavSystem):
 
     def feedback(self, nav, sensors, dx, layout_full: StateLayout):
         state = ins_errors.feedback(nav.state, dx, layout_full)
-        sensors = ins_errors.feedback_sensors(sensors, dx, layout_full)
+        share = (1.0, 1.0) if self.model is None else ins_errors.gm_share(self.model, self.layout)
+        sensors = ins_errors.feedback_sensors(sensors, dx, layout_full, share)
         return strapdown.InsNav(state, nav.prev), sensors
+
+    def predict_sensors(self, sensors: ins_errors.SensorErrors, dt):
+        if self.model is None:  # no stochastic model: the estimates are constants
+            return sensors
+        return ins_errors.decay(sensors, self.model, self.layout, dt)
 
     def initial_std(self, nav, sig: NavSigmas):
         state = nav.state

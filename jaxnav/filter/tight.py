@@ -35,7 +35,7 @@ from jaxnav import geodesy
 from jaxnav.core import rows as core_rows
 from jaxnav.core.states import StateLayout
 from jaxnav.filter import constraints, ekf
-from jaxnav.filter.systems import AbstractNavSystem, NavSigmas
+from jaxnav.filter.systems import AbstractNavSystem, NavSigmas, nav_block_size  # noqa: F401  (re-exported)
 from jaxnav.gnss import corrections, models, ppp
 from jaxnav.gnss.ppp_data import EpochInput  # noqa: F401  (the filter's input, re-exported)
 
@@ -82,12 +82,6 @@ class EpochOutput(NamedTuple):
     used_by_kind: Int[Array, "4"]  # used rows per kind (code, phase, Doppler, ionosphere)
     gated_by_kind: Int[Array, "4"]  # offered rows rejected by the gates / outlier tests
     clock_bias_m: Float[ArrayLike, ""]
-
-
-def nav_block_size(layout: StateLayout) -> int:
-    """Size of the leading navigation block (pos, vel and attitude / azimuth) for outputs."""
-    names = [n for n in ("pos", "vel", "att", "azimuth") if layout.has(n)]
-    return max(layout.sl(n).stop for n in names)
 
 
 def initial_carry(
@@ -161,7 +155,7 @@ def _slot_usable(
     geo = models.geometry(rx.pos_ecef, rx.vel_ecef, obs.sat)
     C_e_l = geodesy.C_l_e(rx.llh[0], rx.llh[1]).T
     el, _ = models.elevation_azimuth(geo.los_ecef, C_e_l)
-    return obs.available & keep & (el >= tf.cfg.elevation_mask_rad), el
+    return ppp.slot_usable(tf.cfg, obs, keep, el), el
 
 
 def _reset_slots(
@@ -289,6 +283,8 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
     cfg = tf.cfg
     nav, mean_inputs = tf.system.propagate(carry.nav, carry.sensors, inp.samples, tf.imu_dt_s)
     P = _propagate_covariance(tf, layout, carry, nav, mean_inputs)
+    # x_hat <- Phi x_hat for the sensor estimates: Gauss-Markov shares decay (issue 16, defect 4)
+    carry = carry._replace(sensors=tf.system.predict_sensors(carry.sensors, tf.epoch_dt_s))
     gnss_est = carry.gnss_est
     if layout.has("clock_bias"):  # nominal clock dynamics: bias' = drift (the only non-RW state)
         drift = gnss_est[layout.i("clock_drift")]
@@ -330,12 +326,11 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
     # a satellite removed by the post-fit test keeps its ambiguity (not a slip)
     tracked = (phase_used | (dropped & carry.tracked & ~inp.obs.slip)) if cfg.uses_phase \
         else usable
-    k = nav_block_size(layout)
     out = EpochOutput(
         llh=tf.system.llh(nav),
         vel_enu=tf.system.vel_enu(nav),
         euler=tf.system.euler(nav),
-        P_nav=res.P[:k, :k],
+        P_nav=tf.system.nav_covariance(nav, res.P, layout),
         nis=res.nis,
         dof=res.dof,
         n_sat=jnp.sum(used_slot),

@@ -224,6 +224,14 @@ def _block_value(layout, gnss_est, name, default=0.0):
     return gnss_est[layout.i(name)] if layout.has(name) else jnp.asarray(default)
 
 
+def slot_usable(cfg: PppConfig, obs: GnssObs, keep: Bool[Array, " S"],
+                elevation: Float[Array, " S"]) -> Bool[Array, " S"]:
+    """Slots whose rows may enter: tracked, kept by the study, above the elevation mask, and with
+    the model ionosphere where the mode needs it (a missing model is never a zero delay)."""
+    model_ok = obs.iono_model_ok | (not cfg.model.uses_iono_model)
+    return obs.available & keep & (elevation >= cfg.elevation_mask_rad) & model_ok
+
+
 def reference_slot(slots: SlotInfo, elevation: Float[Array, " S"],
                    usable: Bool[Array, " S"]) -> Int[Array, ""]:
     """Highest-elevation usable GPS slot (S004 uses a GPS reference satellite)."""
@@ -266,7 +274,7 @@ def measurement_rows(
     geo = models.geometry(rx.pos_ecef, rx.vel_ecef, obs.sat)
     C_e_l = geodesy.C_l_e(rx.llh[0], rx.llh[1]).T
     el, az = models.elevation_azimuth(geo.los_ecef, C_e_l)
-    usable = obs.available & outage_keep & (el >= cfg.elevation_mask_rad)
+    usable = slot_usable(cfg, obs, outage_keep, el)
 
     # Troposphere: a-priori hydrostatic + wet (Saastamoinen, Niell mapping); the estimated ZWD
     # replaces the a-priori wet part when the state exists.
@@ -323,7 +331,7 @@ def measurement_rows(
         pred = geo.range_rate_m_s + drift - obs.sat.clock_rate_m_s
         H = u_pos @ rx.J_vel + column(layout, "clock_drift", S)
         var = (cfg.doppler_sigma_m_s * sig_scale) ** 2
-        blocks.append((pred - obs.range_rate_m_s, H, var, usable, KIND_DOPPLER))
+        blocks.append((pred - obs.range_rate_m_s, H, var, usable & obs.doppler_ok, KIND_DOPPLER))
 
     if cfg.bssd:
         ref = reference_slot(slots, el, usable)

@@ -41,6 +41,9 @@ class GnssObs(NamedTuple):
     code_bias_m: Float[Array, "S 2"]  # known satellite code biases w.r.t. the clock datum [m]
     iono_model_l1_m: Float[Array, " S"]  # model (broadcast / GIM) slant f1 ionosphere [m]
     sat: models.SatEpoch
+    doppler_ok: Bool[Array, " S"]  # the f1 Doppler was measured (else no Doppler row)
+    iono_model_ok: Bool[Array, " S"]  # the model covers the pierce point and epoch (else a mode
+    # that needs the model cannot use the slot)
 
 
 class EpochInput(NamedTuple):

@@ -39,8 +39,8 @@ def _klobuchar_batch(rx_pos, sat_pos, t_rx, alpha, beta):
 
 def ionex_slots(maps, llh, el, az, t_rx, f1):
     """IONEX slant delay on f1 [m] from ``io.IonexMaps``: M(E) 40.3 VTEC / f1^2 at the
-    thin-shell pierce point."""
-    tec = _ionex_batch(
+    thin-shell pierce point, and whether the maps cover the pierce point and epoch ([T, S])."""
+    tec, ok = _ionex_batch(
         ionex_table(maps),
         llh,
         el,
@@ -49,7 +49,7 @@ def ionex_slots(maps, llh, el, az, t_rx, f1):
         maps.height_km * 1e3,
         maps.base_radius_km * 1e3,
     )
-    return corrections.IONO_K * tec / jnp.asarray(f1)[None, :] ** 2
+    return corrections.IONO_K * tec / jnp.asarray(f1)[None, :] ** 2, ok
 
 
 @jax.jit
@@ -58,7 +58,7 @@ def _ionex_batch(table, llh, el, az, t_rx, h, r):
         lat_p, lon_p = corrections.ionosphere_pierce_point(l[0], l[1], a, e, h, r)
         vtec, ok = jax.vmap(lambda la, lo: ionex_vtec(table, t, la, lo))(lat_p, lon_p)
         m = corrections.thin_shell_mapping(e, h, r)
-        return jnp.where(ok, m * vtec * corrections.TECU, 0.0)
+        return jnp.where(ok, m * vtec * corrections.TECU, 0.0), ok
 
     return jax.vmap(one)(llh, el, az, t_rx)
 

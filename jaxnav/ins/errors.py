@@ -244,17 +244,24 @@ def sensor_initial_std(layout: StateLayout, model: ImuErrorModel,
 
 
 class SensorErrors(NamedTuple):
-    """Running estimate of the raw IMU errors: meas = (1 + S) true + b (elementwise, S001 eq 12)."""
+    """Running estimate of the raw IMU errors: meas = (1 + S) true + b (elementwise, S001 eq 12).
+
+    ``accel_bias_m_s2`` / ``gyro_bias_rad_s`` are the total biases removed; ``*_gm`` is the part
+    of them the filter estimated into its Gauss-Markov drift states, which ``decay`` lets decay
+    as the model says (the rest, start-up calibration and turn-on states, is constant).
+    """
 
     accel_bias_m_s2: Float[Array, "3"]
     gyro_bias_rad_s: Float[Array, "3"]
     accel_scale: Float[Array, "3"]  # unitless
     gyro_scale: Float[Array, "3"]  # unitless
+    accel_bias_gm_m_s2: Float[Array, "3"]  # Gauss-Markov share of accel_bias_m_s2
+    gyro_bias_gm_rad_s: Float[Array, "3"]  # Gauss-Markov share of gyro_bias_rad_s
 
     @classmethod
     def zeros(cls) -> SensorErrors:
         z = jnp.zeros(3, jnp.float64)
-        return cls(z, z, z, z)
+        return cls(z, z, z, z, z, z)
 
 
 def feedback(nav: NavState, dx: Float[Array, " n"], layout: StateLayout) -> NavState:
@@ -273,16 +280,41 @@ def _block(dx, layout, name):
     return dx[layout.sl(name)] if layout.has(name) else jnp.zeros(3, dx.dtype)
 
 
+def gm_share(model: ImuErrorModel, layout: StateLayout
+             ) -> tuple[Float[Array, "3"], Float[Array, "3"]]:
+    """Fraction of an accel / gyro bias-block correction that is Gauss-Markov drift.
+
+    1 where the layout has the turn-on block beside it (INS27: the split is estimated). A layout
+    without it (INS15, INS21) lumps turn-on + drift into one block (``sensor_initial_std``);
+    its correction is split by the prior variances, sigma_gm^2 / (sigma_gm^2 + sigma_ton^2),
+    the best linear split of one innovation between two states observed alike, so that a
+    tactical IMU's 50-mg turn-on estimate is not decayed as if it were 0.75-mg drift.
+    """
+    out = []
+    for name, ton in (("accel_bias", model.accel_bias_ton_sigma_m_s2),
+                      ("gyro_bias", model.gyro_bias_ton_sigma_rad_s)):
+        _, sigma = _gm_params(model, name)
+        ton = 0.0 if layout.has(name + "_ton") else _triad(ton)
+        var = sigma**2 + ton**2
+        out.append(jnp.where(var > 0.0, sigma**2 / jnp.where(var > 0.0, var, 1.0), 1.0))
+    return out[0], out[1]
+
+
 def feedback_sensors(
-    sensor: SensorErrors, dx: Float[Array, " n"], layout: StateLayout
+    sensor: SensorErrors, dx: Float[Array, " n"], layout: StateLayout,
+    share: tuple[Float[ArrayLike, "3"], Float[ArrayLike, "3"]] = (1.0, 1.0),
 ) -> SensorErrors:
     """Fold estimated output errors (bias drift + turn-on, scale) into the raw-error estimate.
 
     With compensation f_used = (f_meas - b_hat) / (1 + S_hat), the output error is
     f_used - f = [(S - S_hat) f + (b - b_hat)] / (1 + S_hat) =: diag(f) dS + db, so the raw
     errors are S = S_hat + (1 + S_hat) dS and b = b_hat + (1 + S_hat) db (exact, not only to
-    first order). Blocks missing from ``layout`` contribute zero.
+    first order). Blocks missing from ``layout`` contribute zero. ``share`` (``gm_share``) is
+    the part of the drift blocks' correction kept in the Gauss-Markov shares that ``decay``
+    decays.
     """
+    gm_a = share[0] * _block(dx, layout, "accel_bias")
+    gm_g = share[1] * _block(dx, layout, "gyro_bias")
     db_a = _block(dx, layout, "accel_bias") + _block(dx, layout, "accel_bias_ton")
     db_g = _block(dx, layout, "gyro_bias") + _block(dx, layout, "gyro_bias_ton")
     ka = 1.0 + sensor.accel_scale
@@ -292,6 +324,30 @@ def feedback_sensors(
         sensor.gyro_bias_rad_s + kg * db_g,
         sensor.accel_scale + ka * _block(dx, layout, "accel_scale"),
         sensor.gyro_scale + kg * _block(dx, layout, "gyro_scale"),
+        sensor.accel_bias_gm_m_s2 + ka * gm_a,
+        sensor.gyro_bias_gm_rad_s + kg * gm_g,
+    )
+
+
+def decay(sensor: SensorErrors, model: ImuErrorModel, layout: StateLayout,
+          dt: Float[ArrayLike, ""]) -> SensorErrors:
+    """Predict the sensor estimates over dt as the error model does: x_hat <- exp(-dt/tau) x_hat
+    for each Gauss-Markov block of ``layout`` (b' = -b/tau, S001 eq 13); the constant parts
+    (calibration, turn-on states, tau = inf) stay. Without it the true bias decays while its
+    estimate holds, and the error e = b_hat - b gains the unmodelled drift b_hat / tau."""
+    def factor(name):
+        tau, _ = _gm_params(model, name)
+        return jnp.exp(-dt / tau) if layout.has(name) else jnp.ones(3)
+
+    fa, fg = factor("accel_bias"), factor("gyro_bias")
+    gm_a, gm_g = sensor.accel_bias_gm_m_s2, sensor.gyro_bias_gm_rad_s
+    return SensorErrors(
+        sensor.accel_bias_m_s2 - (1.0 - fa) * gm_a,
+        sensor.gyro_bias_rad_s - (1.0 - fg) * gm_g,
+        sensor.accel_scale * factor("accel_scale"),
+        sensor.gyro_scale * factor("gyro_scale"),
+        fa * gm_a,
+        fg * gm_g,
     )
 
 

@@ -64,19 +64,24 @@ class RissSensorErrors(NamedTuple):
     (f_x, f_y) - accel_bias_xy_m_s2, a_od (1 - odo_scale) - odo_accel_bias_m_s2; the odometer
     speed is scaled, v_od (1 - odo_scale): a wheel odometer's error is a scale factor (tyre
     radius), so a standing vehicle (v_od = 0) stays at rest whatever the estimate.
-    They are held constant between filter updates (``riss_errors.riss_feedback`` updates them).
+    ``riss_errors.riss_feedback`` updates them; between updates the filter's Gauss-Markov
+    shares (``*_gm``; the odometer-acceleration bias is one as a whole) decay as the model says
+    (``riss_errors.decay_sensor_errors``), the start-up calibration stays.
     """
 
     gyro_bias_z_rad_s: Float[Array, ""]
     accel_bias_xy_m_s2: Float[Array, "2"]
     odo_scale: Float[Array, ""]  # relative error of the raw odometer speed (unitless)
     odo_accel_bias_m_s2: Float[Array, ""]
+    gyro_bias_z_gm_rad_s: Float[Array, ""]  # Gauss-Markov share of gyro_bias_z_rad_s
+    accel_bias_xy_gm_m_s2: Float[Array, "2"]  # Gauss-Markov share of accel_bias_xy_m_s2
 
 
 def zero_sensor_errors() -> RissSensorErrors:
     """All sensor-error estimates zero (float64)."""
     z = jnp.zeros((), jnp.float64)
-    return RissSensorErrors(z, jnp.zeros(2, jnp.float64), z, z)
+    z2 = jnp.zeros(2, jnp.float64)
+    return RissSensorErrors(z, z2, z, z, z, z2)
 
 
 def correct_input(inp: RissInput, sensor_errors: RissSensorErrors | None = None) -> RissInput:

@@ -403,12 +403,11 @@ def riss_feedback(
         roll=roll,
     )
 
-    gyro = b.gyro_bias_z_rad_s
-    if layout.has("gyro_bias_z"):
-        gyro = gyro - dx[layout.i("gyro_bias_z")]
-    accel = b.accel_bias_xy_m_s2
-    if layout.has("accel_bias_x"):
-        accel = accel - jnp.stack([dx[layout.i("accel_bias_x")], dx[layout.i("accel_bias_y")]])
+    d_gyro = dx[layout.i("gyro_bias_z")] if layout.has("gyro_bias_z") else 0.0
+    d_accel = (jnp.stack([dx[layout.i("accel_bias_x")], dx[layout.i("accel_bias_y")]])
+               if layout.has("accel_bias_x") else jnp.zeros(2))
+    gyro = b.gyro_bias_z_rad_s - d_gyro
+    accel = b.accel_bias_xy_m_s2 - d_accel
     odo_accel = b.odo_accel_bias_m_s2
     if layout.has("odo_accel"):
         odo_accel = odo_accel + dx[layout.i("odo_accel")]
@@ -421,8 +420,32 @@ def riss_feedback(
     speed = jnp.linalg.norm(state.vel_enu)
     moving = speed > _MIN_SCALE_SPEED_M_S
     d_scale = jnp.where(moving, d_speed * (1.0 - b.odo_scale) / jnp.where(moving, speed, 1.0), 0.0)
-    new_errors = RissSensorErrors(gyro, accel, b.odo_scale + d_scale, odo_accel)
+    new_errors = RissSensorErrors(
+        gyro, accel, b.odo_scale + d_scale, odo_accel,
+        b.gyro_bias_z_gm_rad_s - d_gyro, b.accel_bias_xy_gm_m_s2 - d_accel,
+    )
     return new_state, new_errors
+
+
+def decay_sensor_errors(b: RissSensorErrors, params: RissNoiseParams, layout: StateLayout,
+                        dt: Float[ArrayLike, ""]) -> RissSensorErrors:
+    """Predict the sensor estimates over dt as the model does: x_hat <- exp(-beta dt) x_hat for
+    the Gauss-Markov states of ``layout`` (x' = -beta x, S000 eqs 4.30-4.31): the gyro and
+    accelerometer biases' filter-estimated shares and the odometer-acceleration bias; the
+    start-up calibration and the odometer scale (a random walk) stay."""
+    def factor(name, beta):
+        return jnp.exp(-beta * dt) if layout.has(name) else 1.0
+
+    fg = factor("gyro_bias_z", params.gyro_bias_beta_1_s)
+    fa = factor("accel_bias_x", params.accel_bias_beta_1_s)
+    fo = factor("odo_accel", params.odo_accel_beta_1_s)
+    return b._replace(
+        gyro_bias_z_rad_s=b.gyro_bias_z_rad_s - (1.0 - fg) * b.gyro_bias_z_gm_rad_s,
+        accel_bias_xy_m_s2=b.accel_bias_xy_m_s2 - (1.0 - fa) * b.accel_bias_xy_gm_m_s2,
+        odo_accel_bias_m_s2=fo * b.odo_accel_bias_m_s2,
+        gyro_bias_z_gm_rad_s=fg * b.gyro_bias_z_gm_rad_s,
+        accel_bias_xy_gm_m_s2=fa * b.accel_bias_xy_gm_m_s2,
+    )
 
 
 __all__ = [
@@ -435,5 +458,6 @@ __all__ = [
     "odometer_scale_rate",
     "riss9_dynamics",
     "riss16_dynamics",
+    "decay_sensor_errors",
     "riss_feedback",
 ]

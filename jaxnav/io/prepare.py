@@ -17,10 +17,17 @@ What each slot gets, per epoch (S002 eqs 2.25-2.26 with the corrections of SEED_
   P1/P2 users (precise and broadcast clocks refer to the P1/P2 or E1/E5a ionosphere-free code,
   SEED_SPEC 2.8); for single-frequency users the broadcast group delay: GPS
   B_1 = c TGD, B_2 = (f1/f2)^2 c TGD (IS-GPS-200 20.3.3.3.3.2), Galileo B_1 = c BGD(E1,E5a)
-  likewise. The C/A-minus-P(Y) bias (DCB_P1C1, a few dm) is not available here and is ignored.
+  likewise; a G/E slot without a navigation record is unavailable (never TGD = 0). The C/A
+  code of GPS and GLONASS is levelled to P1 with the satellite's P1-C1 bias (C1 + DCB_P1C1,
+  up to ~1 m): from a CODE DCB file, from the receiver's own C1W - C1C (``p1c1_from_
+  observations``), or knowingly not (``ignore_p1c1``); with none of them single frequency
+  stops with an error, and a slot missing from the table is unavailable.
 - Model ionosphere on f1 (single-frequency users and the ic_ppp GIM pseudo-observation):
   broadcast Klobuchar (IS-GPS-200 20.3.3.5.2.5) scaled by (f_L1/f1)^2, or an IONEX map at the
-  350-km (file height) thin-shell pierce point with the single-layer mapping function.
+  350-km (file height) thin-shell pierce point with the single-layer mapping function. Where
+  the model has no value (no navigation file; a pierce point or epoch outside the IONEX maps)
+  ``iono_model_ok`` is False and a mode that needs the model does not use the slot.
+- Doppler: ``doppler_ok`` is False where the receiver gave none (no Doppler row, never 0 m/s).
 - Phase wind-up (gnss.windup, S002 eqs 2.14-2.19): phase_m = lambda (L - phi_w / 2 pi).
 - Solid Earth tide (gnss.tides, IERS 2010) and the antenna reference point eccentricity
   (RINEX "ANTENNA: DELTA H/E/N"): the antenna sits at r_marker + d, so each observation is
@@ -84,10 +91,48 @@ _MAX_RANGE_M = 3.0e7
 _NOMINAL_TRAVEL_S = 0.075  # used only where no code is present (the slot is unavailable anyway)
 
 
-def rinex_requests(freq: str, systems) -> dict[str, tuple[str, ...]]:
-    """The RINEX 3 codes to ask ``read_rinex_obs`` for, per constellation letter."""
+#: The P-code read next to C/A to measure the satellites' P1-C1 biases (``p1c1_from_observations``).
+P1_CODES = {"G": "C1W", "R": "C1P"}
+
+
+def rinex_requests(freq: str, systems, *, p1_codes: bool = False) -> dict[str, tuple[str, ...]]:
+    """The RINEX 3 codes to ask ``read_rinex_obs`` for, per constellation letter (with
+    ``p1_codes`` also the P-code beside C/A, for ``p1c1_from_observations``)."""
     table = DUAL_SIGNALS if freq == "dual" else SINGLE_SIGNALS
-    return {s: tuple(c for c in table[s] if c is not None) for s in systems}
+    out = {s: tuple(c for c in table[s] if c is not None) for s in systems}
+    if p1_codes:
+        out = {s: v + ((P1_CODES[s],) if s in P1_CODES else ()) for s, v in out.items()}
+    return out
+
+
+def p1c1_from_observations(obs: RinexObs) -> dict[str, float]:
+    """Satellite P1-C1 biases [m] measured by a receiver that tracks P and C/A on L1.
+
+    DCB^s = median_t(P1 - C1) - mean_s(median_t(P1 - C1)) per constellation: P1 - C1 holds the
+    satellite's and the receiver's bias (the latter common to all satellites, absorbed by the
+    clock; CODE's satellite DCBs are zero-mean per constellation likewise); the median over the
+    file removes the code noise and multipath.
+    """
+    out: dict[str, float] = {}
+    for letter, p_code in P1_CODES.items():
+        so = obs.systems.get(letter)
+        if so is None:
+            continue
+        if p_code not in so.obs or "C1C" not in so.obs:
+            raise ValueError(
+                f"P1-C1 from the observations needs {p_code} and C1C of constellation {letter} "
+                "in the observation file (read with rinex_requests(..., p1_codes=True))"
+            )
+        d = so.obs[p_code] - so.obs["C1C"]  # [T, n]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # satellites never seen with both
+            med = np.nanmedian(d, axis=0)
+        seen = np.isfinite(med)
+        if not seen.any():
+            raise ValueError(f"no epoch of constellation {letter} has both {p_code} and C1C")
+        med = med - np.mean(med[seen])
+        out.update({str(sv): float(m) for sv, m, ok in zip(so.sv, med, seen, strict=True) if ok})
+    return out
 
 
 @dataclass
@@ -109,6 +154,8 @@ class PrepareOptions:
     spp_mask_rad: float = math.radians(10.0)  # chosen: the filter's default mask (S000 QC)
     leap_seconds: float = gpstime.GPS_UTC_LEAP_S
     remove_spp_clock: bool = True  # subtract the SPP receiver clock from code and phase
+    p1c1_m: dict[str, float] | None = None  # satellite P1-C1 [m] (io.read_code_dcb or measured)
+    ignore_p1c1: bool = False  # single frequency: use C/A as P1 (up to ~1 m of bias, knowingly)
 
     def __post_init__(self):
         if self.freq not in ("single", "dual"):
@@ -144,6 +191,8 @@ class PreparedGnss(NamedTuple):
     windup_cycles: np.ndarray  # [T, S]
     tide_ecef_m: np.ndarray  # [T, 3]
     slip_counts: dict  # {"lli": n, "gf": n, "mw": n}
+    lost_counts: dict  # slot-epochs tracked but unusable: {"no_tgd", "no_p1c1", "no_doppler",
+    # "no_iono_model"} (the last two only for the rows that need them)
     elevation_rad: np.ndarray  # [T, S] at the approximate position
 
 
@@ -270,10 +319,12 @@ def _antenna_delta(obs: RinexObs, opt: PrepareOptions):
 
 
 def _tgd_per_slot(nav, sv, t_mid_gps):
-    """Broadcast TGD / BGD(E1,E5a) [s] per slot from the record nearest to t_mid (0 if none)."""
+    """Broadcast TGD / BGD(E1,E5a) [s] per slot from the record nearest to t_mid, and whether
+    the slot has one (GLONASS: no group delay is broadcast; 0 and True)."""
     out = np.zeros(len(sv))
+    found = np.array([s[0] not in ("G", "E") for s in sv])
     if nav is None:
-        return out
+        return out, found
     system, prn = np.asarray(nav.system), np.asarray(nav.prn)
     toe = np.asarray(nav.kepler.toe_s) + float(nav.t_ref_gps_s)
     valid = np.asarray(nav.kepler.valid)
@@ -288,7 +339,24 @@ def _tgd_per_slot(nav, sv, t_mid_gps):
         age = np.where(valid[i], np.abs(toe[i] - t_mid_gps), np.inf)
         if np.isfinite(age.min()):
             out[k] = tgd[i, int(np.argmin(age))]
-    return out
+            found[k] = True
+    return out, found
+
+
+def _p1c1_per_slot(opt: PrepareOptions, sv) -> tuple[np.ndarray, np.ndarray]:
+    """P1-C1 [m] per slot (Galileo: 0, its E1 code is the BGD's reference) and whether known."""
+    needs = np.array([s[0] in P1_CODES for s in sv])
+    if opt.ignore_p1c1 or not needs.any():
+        return np.zeros(len(sv)), np.ones(len(sv), bool)
+    if opt.p1c1_m is None:
+        raise ValueError(
+            "single-frequency C/A code needs the satellites' P1-C1 biases (up to ~1 m): give a "
+            "CODE DCB file (--dcb P1C1yymm.DCB), measure them (--p1c1-from-obs, needs C1W in "
+            "the observation file) or accept the bias (--no-p1c1)"
+        )
+    value = np.array([opt.p1c1_m.get(s, 0.0) for s in sv])
+    known = ~needs | np.array([s in opt.p1c1_m for s in sv])
+    return value, known
 
 
 def prepare_gnss(
@@ -367,9 +435,19 @@ def prepare_gnss(
     # --- model ionosphere inputs (needs geometry: computed after SPP) ------------------------
     doy = np.array([gpstime.day_of_year(t) for t in t_rx])
     code_bias = np.zeros((T, S, 2))
+    bias_known = np.ones(S, bool)
+    p1c1_known = np.ones(S, bool)
     if not dual:
-        tgd = _tgd_per_slot(products.nav, arr.sv, float(np.median(t_rx)))
-        code_bias[..., 0] = C_LIGHT * tgd
+        if products.nav is None and any(s[0] in ("G", "E") for s in arr.sv):
+            raise ValueError(
+                "single-frequency code needs the broadcast group delays (TGD / BGD) of the "
+                "navigation file: give --nav"
+            )
+        tgd, bias_known = _tgd_per_slot(products.nav, arr.sv, float(np.median(t_rx)))
+        p1c1, p1c1_known = _p1c1_per_slot(opt, arr.sv)
+        # C1 + DCB_P1C1 = P1; P1 - c TGD refers to the ionosphere-free clock (IS-GPS-200
+        # 20.3.3.3.3.2); the filter subtracts code_bias from the code.
+        code_bias[..., 0] = C_LIGHT * tgd - p1c1
         code_bias[..., 1] = (f1 / f2) ** 2 * C_LIGHT * tgd
 
     # --- single-point positioning -----------------------------------------------------------
@@ -397,7 +475,9 @@ def prepare_gnss(
             opt.spp_mask_rad,
         )
         rx_first = fill_positions(np.asarray(first.pos_ecef), np.asarray(first.ok))
-        iono_for_spp = jnp.asarray(_iono_model(opt, products, rx_first, sat, t_rx, f1))
+        iono_first, iono_first_ok = _iono_model(opt, products, rx_first, sat, t_rx, f1)
+        iono_for_spp = jnp.asarray(iono_first)
+        pr_ok = pr_ok & iono_first_ok
     res = spp(
         jnp.asarray(np.nan_to_num(pr)),
         sat.pos,
@@ -428,7 +508,7 @@ def prepare_gnss(
     los, el, az, llh, sat_rot = series.geometry_series(jnp.asarray(approx), sat.pos, sat.clock_m)
 
     # --- ionosphere model ---------------------------------------------------------------------
-    iono_l1 = _iono_model(opt, products, approx, sat, t_rx, f1)
+    iono_l1, iono_ok = _iono_model(opt, products, approx, sat, t_rx, f1)
 
     # --- wind-up and tides ----------------------------------------------------------------------
     if opt.apply_windup:
@@ -493,7 +573,18 @@ def prepare_gnss(
     else:
         need = np.isfinite(code[..., 0])
     plausible = (code[..., 0] > _MIN_RANGE_M) & (code[..., 0] < _MAX_RANGE_M)
-    available = need & plausible & np.asarray(sat.valid)
+    tracked = need & plausible & np.asarray(sat.valid)
+    available = tracked & bias_known[None, :] & p1c1_known[None, :]
+    doppler_ok = np.isfinite(arr.doppler_hz)
+    lost = {
+        "no_tgd": int(np.sum(tracked & ~bias_known[None, :])),
+        "no_p1c1": int(np.sum(tracked & bias_known[None, :] & ~p1c1_known[None, :])),
+        "no_doppler": int(np.sum(available & ~doppler_ok)),
+        "no_iono_model": int(np.sum(available & ~iono_ok)) if opt.iono != "none" else 0,
+    }
+    for what, text in (("no_tgd", "no broadcast TGD / BGD"), ("no_p1c1", "no P1-C1 bias")):
+        if lost[what]:
+            warnings.warn(f"{lost[what]} tracked slot-epochs are unusable: {text}", stacklevel=2)
 
     def fin(a):
         return jnp.asarray(np.nan_to_num(np.where(np.isfinite(a), a, 0.0)))
@@ -507,6 +598,8 @@ def prepare_gnss(
         code_bias_m=jnp.asarray(code_bias),
         iono_model_l1_m=jnp.asarray(iono_l1),
         sat=models.SatEpoch(sat.pos, sat.vel, sat.clock_m, sat.clock_rate_m_s),
+        doppler_ok=jnp.asarray(doppler_ok & available),
+        iono_model_ok=jnp.asarray(iono_ok),
     )
     slots = SlotInfo(jnp.asarray(arr.system), jnp.asarray(f1), jnp.asarray(f2))
     counts = {
@@ -527,21 +620,29 @@ def prepare_gnss(
         windup_cycles=phi_w / (2.0 * np.pi),
         tide_ecef_m=disp,
         slip_counts=counts,
+        lost_counts=lost,
         elevation_rad=np.asarray(el),
     )
 
 
 def _iono_model(opt: PrepareOptions, products: Products, rx_pos, sat, t_rx, f1):
-    """Model slant ionosphere on each slot's f1 [m] ([T, S]) at receiver positions [T, 3]."""
+    """Model slant ionosphere on each slot's f1 [m] ([T, S]) at receiver positions [T, 3], and
+    where the model has a value ([T, S] bool; "none" has none anywhere)."""
     T, S = sat.clock_m.shape
     if opt.iono == "klobuchar":
         if products.nav is None:
-            warnings.warn("no navigation file: no Klobuchar ionosphere model", stacklevel=3)
-            return np.zeros((T, S))
-        return np.asarray(series.klobuchar_slots(products.nav, rx_pos, sat.pos, t_rx, f1))
+            return np.zeros((T, S)), np.zeros((T, S), bool)
+        values = np.asarray(series.klobuchar_slots(products.nav, rx_pos, sat.pos, t_rx, f1))
+        return values, np.ones((T, S), bool)
     if opt.iono == "ionex":
+        maps = products.ionex
+        t0, t1 = float(maps.time_gps_s[0]), float(maps.time_gps_s[-1])
+        if t_rx[-1] < t0 or t_rx[0] > t1:
+            raise ValueError(
+                f"the IONEX maps span GPS seconds {t0:.0f}..{t1:.0f}, the observations "
+                f"{t_rx[0]:.0f}..{t_rx[-1]:.0f}: give the maps of the observation day"
+            )
         _, el, az, llh, _ = series.geometry_series(jnp.asarray(rx_pos), sat.pos, sat.clock_m)
-        return np.asarray(series.ionex_slots(products.ionex, llh, el, az, t_rx, f1))
-    return np.zeros((T, S))
-
-
+        values, ok = series.ionex_slots(maps, llh, el, az, t_rx, f1)
+        return np.asarray(values), np.asarray(ok)
+    return np.zeros((T, S)), np.zeros((T, S), bool)

@@ -7,6 +7,7 @@ sample; ``gnss/interp.py`` packs them into JAX tables and interpolates them (re-
   midnight); bad positions (0.000000 km) and clocks (999999.999999 us) become NaN.
 - RINEX clock (3.00/3.04, ``AS`` records): satellite clock bias [s] and its sigma.
 - IONEX 1.0: VTEC maps [TECU] and their RMS, the shell height and base radius.
+- CODE differential code biases (``P1C1yymm.DCB``): the satellites' P1-C1 biases [m].
 """
 
 from __future__ import annotations
@@ -588,3 +589,44 @@ def read_ionex(path: str | PathLike) -> IonexMaps:
     )
 
 
+
+
+_NS_TO_M = 299792458.0 * 1e-9
+
+
+def read_code_dcb(path: str | PathLike) -> dict[str, float]:
+    """Satellite differential code biases of a CODE ``.DCB`` file [m], e.g. ``{"G01": -0.21}``.
+
+    The file's ``VALUE (NS)`` column times c (CODE convention DCB = b_P1 - b_C1, so a C/A code
+    becomes P1 as C1 + DCB, as RTKLIB applies it). Station rows (a letter and a station name) are
+    skipped; any other non-blank row after the ``***`` ruler is an ``InputError``.
+    """
+    path = Path(path)
+    lines = _open_text(path, "CODE DCB file")
+    start = next((i + 1 for i, ln in enumerate(lines) if ln.startswith("***")), None)
+    if start is None:
+        raise InputError("no '***' column ruler", file=path,
+                         expected="a CODE DCB file ('PRN / STATION NAME  VALUE (NS)  RMS (NS)')")
+    out: dict[str, float] = {}
+    for i in range(start, len(lines)):
+        text = lines[i].rstrip()
+        if not text.strip():
+            continue
+        head, fields = text[:26], text[26:].split()
+        sv = head[:3].strip()
+        if len(sv) == 1 and head[3:].strip():
+            continue  # a station's bias: absorbed by the receiver clock
+        try:
+            if len(sv) != 3 or sv[0] not in "GREC" or not sv[1:].isdigit() or head[3:].strip():
+                raise ValueError
+            value_ns = float(fields[0])
+        except (ValueError, IndexError):
+            raise InputError(f"unreadable row {text!r}", file=path, line=i + 1,
+                             expected="'G01' then the value and RMS in ns") from None
+        if sv in out:
+            raise InputError(f"{sv} listed twice", file=path, line=i + 1,
+                             expected="one row per satellite")
+        out[sv] = value_ns * _NS_TO_M
+    if not out:
+        raise InputError("no satellite rows", file=path, expected="rows such as 'G01  -0.716'")
+    return out

@@ -137,6 +137,8 @@ def _gnss_obs(obs: observations.Observations, code_band0: int, broadcast: bool) 
         code_bias_m=jnp.broadcast_to(code_bias, code.shape),
         iono_model_l1_m=obs.iono_model_l1_m,
         sat=sat,
+        doppler_ok=obs.valid,  # the simulated receiver measures Doppler wherever it tracks
+        iono_model_ok=jnp.ones_like(obs.valid),  # the simulated model covers the globe
     )
 
 

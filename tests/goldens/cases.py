@@ -12,6 +12,12 @@ the same): the same computations compiled another way differ by rounding only. P
 by at most 26 nm; velocities by 3e-10, attitude 8e-10 and NIS 2.4e-8 of their largest values
 (above the 1e-9 criterion, hence the rewrite); integer fields not at all. The arrays before
 that were bit-identical through the PPP-mode refactor.
+
+Rewritten again (2026-12-02, issue 16) for changes meant to alter the numbers: Gauss-Markov
+sensor estimates decay with their tau (defect 4) and the RISS output covariance is J P J^T
+(the re-derived velocity). Positions moved by at most 2.0 cm (sdf_code/riss9), velocities
+5e-4, attitude 3e-4, NIS 1.3e-2 and the final P_nav 2.9e-2 of their largest values; integer
+fields (satellites used and gated) not at all.
 """
 
 from __future__ import annotations

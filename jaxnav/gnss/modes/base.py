@@ -102,7 +102,8 @@ def iono_model_var(
     return (cfg.iono_model_residual_fraction * iono_model_l1_m) ** 2 + floor**2
 
 
-_REQUIRED_CLASS_VARS = ("name", "uses_phase", "single_frequency", "blocks")
+_REQUIRED_CLASS_VARS = ("name", "uses_phase", "single_frequency", "uses_iono_model",
+                        "blocks")
 
 
 class AbstractPppMode(eqx.Module):
@@ -111,6 +112,7 @@ class AbstractPppMode(eqx.Module):
     name: ClassVar[str]  # the name used in study TOML, on the command line and in results
     uses_phase: ClassVar[bool]  # carrier-phase rows with per-slot ambiguities
     single_frequency: ClassVar[bool]  # only f1 observables (simulated C/A code, L1)
+    uses_iono_model: ClassVar[bool]  # its rows or restarts need the model ionosphere
     blocks: ClassVar[tuple[Block, ...]]  # the mode's own blocks, in layout order
     supports_bssd: ClassVar[bool] = True  # rows may be between-satellite differenced (S004)
 

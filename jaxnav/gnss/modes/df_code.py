@@ -19,6 +19,7 @@ class DfCode(AbstractPppMode):
     name: ClassVar[str] = "df_code"
     uses_phase: ClassVar[bool] = False
     single_frequency: ClassVar[bool] = False
+    uses_iono_model: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = ()
 
     def rows(self, cfg, ctx) -> list[RowBlock]:

@@ -22,6 +22,7 @@ class FloatPpp(AbstractPppMode):
     name: ClassVar[str] = "float_ppp"
     uses_phase: ClassVar[bool] = True
     single_frequency: ClassVar[bool] = False
+    uses_iono_model: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = (Block("amb", True, "ambiguity_init_sigma_m"),)
 
     def reset_values(self, cfg, layout, obs, cmb, restart: Bool[Array, " S"],

@@ -78,6 +78,7 @@ class IcPpp(AbstractPppMode):
     name: ClassVar[str] = "ic_ppp"
     uses_phase: ClassVar[bool] = True
     single_frequency: ClassVar[bool] = False
+    uses_iono_model: ClassVar[bool] = True
     supports_bssd: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = (
         Block("amb1", True, "ambiguity_init_sigma_m"),

@@ -38,6 +38,7 @@ class SdfCode(AbstractPppMode):
     name: ClassVar[str] = "sdf_code"
     uses_phase: ClassVar[bool] = False
     single_frequency: ClassVar[bool] = False
+    uses_iono_model: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = ()
 
     def update_memory(self, cfg, hatch, cmb, usable, restart):

@@ -16,6 +16,7 @@ class SfCode(AbstractPppMode):
     name: ClassVar[str] = "sf_code"
     uses_phase: ClassVar[bool] = False
     single_frequency: ClassVar[bool] = True
+    uses_iono_model: ClassVar[bool] = True
     blocks: ClassVar[tuple[Block, ...]] = ()
 
     def clock_code(self, cmb):

@@ -38,6 +38,7 @@ class SfPpp(AbstractPppMode):
     name: ClassVar[str] = "sf_ppp"
     uses_phase: ClassVar[bool] = True
     single_frequency: ClassVar[bool] = True
+    uses_iono_model: ClassVar[bool] = True
     # Between-satellite differences of per-slot ionosphere rows are not implemented (as ic_ppp).
     supports_bssd: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = (

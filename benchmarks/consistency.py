@@ -1,0 +1,155 @@
+"""Filter consistency on the realistic simulator: ANEES and NIS against their chi-square bands.
+
+Every default error source of the simulator is on (correlated code and phase multipath, orbit
+and clock residuals, ionosphere and its broadcast-model residual, the ZWD residual, the IMU
+grade's turn-on biases, Gauss-Markov drifts and scale factors): the question is whether the
+sigmas the filters claim are true for the world they will meet, not for the white-noise world
+they assume (that is ``tests/test_consistency.py``).
+
+For each cell (PPP mode x navigation system; loose coupling as the cascade ``lc_ins15``), N
+realisations (seeds 0..N-1) of the default drive, started at the truth with the filter's
+initial covariance (so the first minutes are under-dispersed by construction and are left out:
+``--settle``). Reported per cell:
+
+- ANEES of position and of velocity (3 dof each): the mean over runs and over the epochs after
+  the settling time of e^T P^-1 e. Consecutive epochs are correlated, so the band is the
+  two-sided 95 % band of chi2(N n) / N for the N runs (not an N x T one), as in
+  tests/test_consistency.py: a consistent filter lies inside it 95 % of the time.
+- ANIS: the sum of the used rows' normalised innovations squared over the sum of their number
+  (innovations of a consistent filter are white, so here the band is chi2(D) / D for the D
+  rows used after the settling time). The tight filters only; the cascade's PPP part has its own.
+
+The last line printed is JSON ``{"<mode>/<system>": {"anees_pos": .., "anees_vel": ..,
+"anis": .., "dof": 3, "runs": N, "lo": .., "hi": .., "nis_lo": .., "nis_hi": ..}, ...}``.
+
+    python benchmarks/consistency.py            # 200 runs x 900 s, every cell (hours)
+    python benchmarks/consistency.py --quick    # 16 runs x 420 s, a few cells (minutes)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.stats import chi2
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchutil  # noqa: E402
+
+import jaxnav  # noqa: E402, F401  (float64)
+from jaxnav.study import metrics as mt  # noqa: E402
+from jaxnav.study.factory import LC_SYSTEMS, SimFactory  # noqa: E402
+
+FULL_MODES = ("sf_code", "df_code", "sdf_code", "float_ppp", "ic_ppp", "sf_ppp")
+FULL_SYSTEMS = ("riss", "ins15")
+QUICK_CELLS = (("sf_code", "riss"), ("float_ppp", "riss"), ("float_ppp", "ins15"),
+               ("float_ppp", "lc_ins15"))
+
+
+def band(n_dof: int, n: int, prob: float = 0.95) -> tuple[float, float]:
+    """Two-sided band of chi2(n n_dof) / n: the mean of n independent chi2(n_dof) draws."""
+    a = (1.0 - prob) / 2.0
+    return float(chi2.ppf(a, n * n_dof) / n), float(chi2.ppf(1.0 - a, n * n_dof) / n)
+
+
+def _vel_nees(est: mt.Track, true: mt.Track, P_nav):
+    """Velocity NEES e_v^T P_vv^-1 e_v per epoch [T] (3 dof; the INS/RISS layouts put the
+    velocity at indices 3-5 of the navigation block)."""
+    e = est.vel_enu - true.vel_enu
+    P = P_nav[:, 3:6, 3:6]
+    return jnp.einsum("ti,ti->t", e, jnp.linalg.solve(P, e[..., None])[..., 0])
+
+
+def cell(factory: SimFactory, mode: str, system: str, n_runs: int, settle_s: float) -> dict:
+    """ANEES (position, velocity) and ANIS of one (mode, system) over seeds 0..n_runs-1."""
+    ops = factory.ops_for(mode, system)
+    q_pos, q_vel, nis, dof = [], [], [], []
+    run = None
+    for seed in range(n_runs):
+        prob = factory.build(None, mode, system, seed)
+        if run is None:
+            def one(tf, carry0, inputs, truth):
+                out = ops.run(tf, carry0, inputs)[1]
+                est, P_nav = ops.readout(out)
+                qp, _ = mt.nees(est, truth, P_nav)
+                part = out.lc if system in LC_SYSTEMS else out
+                tight_nis = getattr(part, "nis", jnp.zeros_like(qp))
+                tight_dof = getattr(part, "dof", jnp.zeros_like(qp))
+                return qp, _vel_nees(est, truth, P_nav), tight_nis, tight_dof
+            run = jax.jit(one)
+        r = run(prob.tf, prob.carry0, prob.inputs, prob.truth)
+        for acc, v in zip((q_pos, q_vel, nis, dof), r, strict=True):
+            acc.append(np.asarray(v))
+    q_pos, q_vel, nis, dof = (np.stack(a) for a in (q_pos, q_vel, nis, dof))
+    k0 = int(round(settle_s / factory.cfg.epoch_interval_s))
+    q_pos, q_vel, nis, dof = (a[:, k0:] for a in (q_pos, q_vel, nis, dof))
+    lo, hi = band(3, n_runs)
+    d = float(dof.sum())
+    out = {
+        "anees_pos": float(q_pos.mean()),
+        "anees_vel": float(q_vel.mean()),
+        "median_nees_pos": float(np.median(q_pos)),
+        "dof": 3,
+        "runs": n_runs,
+        "lo": lo,
+        "hi": hi,
+    }
+    if d > 0:
+        out |= {"anis": float(nis.sum() / d),
+                "nis_lo": float(chi2.ppf(0.025, d) / d), "nis_hi": float(chi2.ppf(0.975, d) / d)}
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="16 runs x 420 s of four cells")
+    p.add_argument("--runs", type=int, help="realisations per cell (default 200, quick 16)")
+    p.add_argument("--duration", type=float, help="drive length [s] (default 900, quick 420)")
+    p.add_argument("--settle", type=float, default=300.0,
+                   help="seconds left out at the start (default 300)")
+    p.add_argument("--results", type=Path, default=benchutil.RESULTS_MD)
+    a = p.parse_args(argv)
+    n_runs = a.runs or (16 if a.quick else 200)
+    duration = a.duration or (420.0 if a.quick else 900.0)
+    if duration <= a.settle:
+        p.error(f"--duration {duration} must exceed --settle {a.settle}")
+    if a.quick:
+        cells = QUICK_CELLS
+    else:
+        cells = tuple((m, s) for m in FULL_MODES for s in FULL_SYSTEMS) + (
+            ("float_ppp", "lc_ins15"),)
+    factory = SimFactory({"duration_s": duration})
+    figures, lines = {}, []
+    lines.append(f"{n_runs} runs x {duration:.0f} s per cell (default drive, every simulated "
+                 f"error source on), epochs after {a.settle:.0f} s; bands two-sided 95 %.")
+    lines.append("")
+    lines.append("| mode / system | ANEES pos | ANEES vel | band (3 dof) | median NEES pos | ANIS "
+                 "| NIS band | s |")
+    lines.append("|---|---|---|---|---|---|---|---|")
+    for mode, system in cells:
+        t0 = time.time()
+        c = cell(factory, mode, system, n_runs, a.settle)
+        figures[f"{mode}/{system}"] = c
+        nis = (f"{c['anis']:.2f} | {c['nis_lo']:.2f}-{c['nis_hi']:.2f}" if "anis" in c
+               else "- | -")
+        row = (f"| {mode} / {system} | {c['anees_pos']:.2f} | {c['anees_vel']:.2f} | "
+               f"{c['lo']:.2f}-{c['hi']:.2f} | {c['median_nees_pos']:.2f} | {nis} | "
+               f"{time.time() - t0:.0f} |")
+        lines.append(row)
+        print(row, flush=True)
+    inside = sum(c["lo"] <= c["anees_pos"] <= c["hi"] and c["lo"] <= c["anees_vel"] <= c["hi"]
+                 for c in figures.values())
+    lines.append("")
+    lines.append(f"Cells with both ANEES inside the band: {inside} of {len(figures)}.")
+    benchutil.finish("Consistency on the realistic simulator", a.quick, lines, figures,
+                     a.results)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
