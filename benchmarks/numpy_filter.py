@@ -239,7 +239,9 @@ class NumpyTightFilter:
             gyro_bias_tau_s=triad(m.gyro_bias_tau_s),
             # INS15 lumps turn-on + drift: the drift share of a correction by prior variances
             accel_gm_share=_share(m.accel_bias_sigma_m_s2, m.accel_bias_ton_sigma_m_s2),
-            gyro_gm_share=_share(m.gyro_bias_sigma_rad_s, m.gyro_bias_ton_sigma_rad_s),
+            gyro_gm_share=_share(m.gyro_bias_sigma_rad_s, m.gyro_bias_ton_sigma_rad_s
+                                 if system.gyro_calibration_s is None else
+                                 m.gyro_arw_rad_sqrt_s / np.sqrt(system.gyro_calibration_s)),
             n_slots=int(cfg.n_slots),
             alpha=f1**2 / d,
             beta=-(f2**2) / d,

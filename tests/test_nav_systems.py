@@ -111,6 +111,16 @@ def test_sensor_estimates_decay_as_their_gauss_markov_model():
     share = 1e-4 / (1e-4 + 9e-4)
     np.testing.assert_allclose(est15.accel_bias_gm_m_s2, share * np.array([0.1, 0.0, 0.2]))
     np.testing.assert_allclose(est15.accel_bias_m_s2, [0.1, 0.0, 0.2])
+    # after a standstill calibration of T seconds the gyro's turn-on prior is ARW / sqrt(T)
+    # (sensor_initial_std): the gyro correction is then mostly drift
+    gyro = eqx.tree_at(lambda m: m.gyro_bias_ton_sigma_rad_s, model, jnp.asarray(1e-2))
+    _, g_share = errors.gm_share(gyro, INS15, 30.0)
+    want = 1e-8 / (1e-8 + 1e-8 / 30.0)
+    np.testing.assert_allclose(g_share, want)
+    calibrated = systems.InsSystem(INS15, gyro, gyro_calibration_s=30.0)
+    dxg = jnp.zeros(INS15.size).at[INS15.sl("gyro_bias")].set(jnp.array([1e-4, 0.0, 0.0]))
+    _, est_g = calibrated.feedback(_ins_nav(), calibrated.zero_sensors(), dxg, INS15)
+    np.testing.assert_allclose(est_g.gyro_bias_gm_rad_s, [want * 1e-4, 0.0, 0.0])
 
     riss = systems.RissSystem(RISS16)
     p = riss.params

@@ -270,7 +270,6 @@ def test_single_frequency_needs_tgd_and_p1c1_never_zero(esbc):
     dcb = prep_mod.p1c1_from_observations(obs)
     values = np.array(list(dcb.values()))
     assert len(dcb) >= 8 and np.all(np.abs(values) < 3e-9 * 299792458.0), dcb
-    assert abs(values.mean()) < 1e-12  # zero-mean over the satellites, as CODE's
     first = sorted(dcb)[0]
     partial = {k: v for k, v in dcb.items() if k != first}
     prep = prep_mod.prepare_gnss(obs, precise, prep_mod.PrepareOptions(

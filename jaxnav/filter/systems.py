@@ -369,6 +369,10 @@ class InsSystem(AbstractNavSystem):
     layout: StateLayout = eqx.field(static=True, default=INS15)
     model: ins_errors.ImuErrorModel | None = None
     lever_b: jax.Array = eqx.field(default_factory=lambda: jnp.zeros(3))
+    # seconds of the standstill gyro calibration the run starts with (None: none); sets the
+    # turn-on prior that splits a lumped bias correction (``ins_errors.gm_share``), as
+    # ``NavSigmas.gyro_calibration_s`` sets it for the initial covariance
+    gyro_calibration_s: float | None = eqx.field(static=True, default=None)
 
     def propagate(self, nav, sensors: ins_errors.SensorErrors, samples, dt):
         """``nav`` an ``InsNav``; ``samples`` raw ImuIncrements [K]."""
@@ -407,7 +411,8 @@ class InsSystem(AbstractNavSystem):
 
     def feedback(self, nav, sensors, dx, layout_full: StateLayout):
         state = ins_errors.feedback(nav.state, dx, layout_full)
-        share = (1.0, 1.0) if self.model is None else ins_errors.gm_share(self.model, self.layout)
+        share = ((1.0, 1.0) if self.model is None
+                 else ins_errors.gm_share(self.model, self.layout, self.gyro_calibration_s))
         sensors = ins_errors.feedback_sensors(sensors, dx, layout_full, share)
         return strapdown.InsNav(state, nav.prev), sensors
 

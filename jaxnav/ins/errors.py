@@ -280,7 +280,8 @@ def _block(dx, layout, name):
     return dx[layout.sl(name)] if layout.has(name) else jnp.zeros(3, dx.dtype)
 
 
-def gm_share(model: ImuErrorModel, layout: StateLayout
+def gm_share(model: ImuErrorModel, layout: StateLayout,
+             gyro_calibration_s: Float[ArrayLike, ""] | None = None,
              ) -> tuple[Float[Array, "3"], Float[Array, "3"]]:
     """Fraction of an accel / gyro bias-block correction that is Gauss-Markov drift.
 
@@ -288,11 +289,15 @@ def gm_share(model: ImuErrorModel, layout: StateLayout
     without it (INS15, INS21) lumps turn-on + drift into one block (``sensor_initial_std``);
     its correction is split by the prior variances, sigma_gm^2 / (sigma_gm^2 + sigma_ton^2),
     the best linear split of one innovation between two states observed alike, so that a
-    tactical IMU's 50-mg turn-on estimate is not decayed as if it were 0.75-mg drift.
+    tactical IMU's 50-mg turn-on estimate is not decayed as if it were 0.75-mg drift. After a
+    standstill gyro calibration the gyro's turn-on prior is ARW / sqrt(T), as in
+    ``sensor_initial_std``.
     """
+    gyro_ton = model.gyro_bias_ton_sigma_rad_s
+    if gyro_calibration_s is not None:
+        gyro_ton = model.gyro_arw_rad_sqrt_s / jnp.sqrt(gyro_calibration_s)
     out = []
-    for name, ton in (("accel_bias", model.accel_bias_ton_sigma_m_s2),
-                      ("gyro_bias", model.gyro_bias_ton_sigma_rad_s)):
+    for name, ton in (("accel_bias", model.accel_bias_ton_sigma_m_s2), ("gyro_bias", gyro_ton)):
         _, sigma = _gm_params(model, name)
         ton = 0.0 if layout.has(name + "_ton") else _triad(ton)
         var = sigma**2 + ton**2

@@ -200,6 +200,7 @@ def read_broadcast_ephemeris(
         return np.full((n, n_rec), fill, dtype=np.float64)
 
     kf = {name: arr() for name in KeplerRecords._fields}
+    kf["tgd_s"][:] = np.nan  # no record, no group delay
     kf["valid"] = np.zeros((n, n_rec), bool)
     kf["sqrt_a"][:] = math.sqrt(GPS_A_M)  # benign padding (finite orbit) for unused entries
     gf = {name: arr() for name in ("tb_s", "clock_bias_s", "rel_freq_bias")}
@@ -254,13 +255,15 @@ def read_broadcast_ephemeris(
                 "af0": r["SVclockBias"],
                 "af1": r["SVclockDrift"],
                 "af2": r["SVclockDriftRate"],
-                "tgd_s": r["TGD"] if s[0] == "G" else r.get("BGDe5a", 0.0),
+                # a missing group delay stays NaN (never 0): io/prepare then drops the slot
+                "tgd_s": r["TGD"] if s[0] == "G" else r.get("BGDe5a", np.nan),
                 "toe_week_s": r["Toe"],
                 "gm": GM_GPS if s[0] == "G" else GM_GAL,
             }
-            finite = all(np.isfinite(v) for v in vals.values())
+            # the orbit and clock must be finite; the group delay is for SF users only
+            finite = all(np.isfinite(v) for k, v in vals.items() if k != "tgd_s")
             for key, v in vals.items():
-                kf[key][i, j] = v if np.isfinite(v) else kf[key][i, j]
+                kf[key][i, j] = v if np.isfinite(v) or key == "tgd_s" else kf[key][i, j]
             kf["valid"][i, j] = healthy and finite
 
     alpha, beta = _klobuchar_from_header(nav.attrs)

@@ -17,7 +17,8 @@ What each slot gets, per epoch (S002 eqs 2.25-2.26 with the corrections of SEED_
   P1/P2 users (precise and broadcast clocks refer to the P1/P2 or E1/E5a ionosphere-free code,
   SEED_SPEC 2.8); for single-frequency users the broadcast group delay: GPS
   B_1 = c TGD, B_2 = (f1/f2)^2 c TGD (IS-GPS-200 20.3.3.3.3.2), Galileo B_1 = c BGD(E1,E5a)
-  likewise; a G/E slot without a navigation record is unavailable (never TGD = 0). The C/A
+  likewise; a G/E slot without a navigation record (or a record without the group delay) is
+  unavailable (never TGD = 0), and so is GLONASS with precise clocks (no P1-P2 DCB). The C/A
   code of GPS and GLONASS is levelled to P1 with the satellite's P1-C1 bias (C1 + DCB_P1C1,
   up to ~1 m): from a CODE DCB file, from the receiver's own C1W - C1C (``p1c1_from_
   observations``), or knowingly not (``ignore_p1c1``); with none of them single frequency
@@ -320,7 +321,8 @@ def _antenna_delta(obs: RinexObs, opt: PrepareOptions):
 
 def _tgd_per_slot(nav, sv, t_mid_gps):
     """Broadcast TGD / BGD(E1,E5a) [s] per slot from the record nearest to t_mid, and whether
-    the slot has one (GLONASS: no group delay is broadcast; 0 and True)."""
+    the slot has one (GLONASS broadcasts none: 0 and True with broadcast clocks; with precise
+    clocks ``prepare_gnss`` drops GLONASS single-frequency slots)."""
     out = np.zeros(len(sv))
     found = np.array([s[0] not in ("G", "E") for s in sv])
     if nav is None:
@@ -336,7 +338,7 @@ def _tgd_per_slot(nav, sv, t_mid_gps):
         if sel.size == 0:
             continue
         i = sel[0]
-        age = np.where(valid[i], np.abs(toe[i] - t_mid_gps), np.inf)
+        age = np.where(valid[i] & np.isfinite(tgd[i]), np.abs(toe[i] - t_mid_gps), np.inf)
         if np.isfinite(age.min()):
             out[k] = tgd[i, int(np.argmin(age))]
             found[k] = True
@@ -444,6 +446,10 @@ def prepare_gnss(
                 "navigation file: give --nav"
             )
         tgd, bias_known = _tgd_per_slot(products.nav, arr.sv, float(np.median(t_rx)))
+        if products.sp3 is not None:
+            # precise GLONASS clocks refer to the P1/P2 ionosphere-free code: a C/A user needs
+            # the satellite's P1-P2 DCB, which no product here gives (never 0: unusable)
+            bias_known = bias_known & (arr.system != signals.SYS_GLO)
         p1c1, p1c1_known = _p1c1_per_slot(opt, arr.sv)
         # C1 + DCB_P1C1 = P1; P1 - c TGD refers to the ionosphere-free clock (IS-GPS-200
         # 20.3.3.3.3.2); the filter subtracts code_bias from the code.

@@ -174,7 +174,14 @@ class SimFactory:
         else:
             layout = INS15 if name.startswith("ins15") else INS21
         model = loose.imu_error_model(sensors.imu_grade(self.ins_grade))
-        return systems.InsSystem(layout, model, jnp.asarray(cfg.lever_b_m, jnp.float64))
+        return systems.InsSystem(layout, model, jnp.asarray(cfg.lever_b_m, jnp.float64),
+                                 gyro_calibration_s=self._calibration_s())
+
+    def _calibration_s(self) -> float | None:
+        """Seconds of the standstill gyro calibration ``start`` does (a flight has none)."""
+        if self.cfg.drive_style == "airborne":
+            return None
+        return _STATIC_CALIBRATION_EPOCHS * self.cfg.epoch_interval_s
 
     def filter(self, mode: str, system_name: str) -> tight.TightFilter | cascade.CascadeFilter:
         cfg, geo = self.cfg, self.geo
@@ -222,8 +229,7 @@ class SimFactory:
             )
             ins = tf.lc if system_name in LC_SYSTEMS else tf
             sens0 = ins.system.calibrate_static(nav0, head, ins.imu_dt_s)
-            calib_s = _STATIC_CALIBRATION_EPOCHS * self.cfg.epoch_interval_s
-            sigmas = systems.NavSigmas(gyro_calibration_s=calib_s)
+            sigmas = systems.NavSigmas(gyro_calibration_s=self._calibration_s())
         if system_name in LC_SYSTEMS:
             carry0 = cascade.initial_carry(tf, nav0, real.obs0, sigmas, sensors0=sens0)
             return carry0, cascade.epoch_inputs(inputs)
