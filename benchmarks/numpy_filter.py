@@ -238,10 +238,10 @@ class NumpyTightFilter:
             gyro_bias_sigma=triad(m.gyro_bias_sigma_rad_s),
             gyro_bias_tau_s=triad(m.gyro_bias_tau_s),
             # INS15 lumps turn-on + drift: the drift share of a correction by prior variances
-            accel_gm_share=_share(m.accel_bias_sigma_m_s2, m.accel_bias_ton_sigma_m_s2),
-            gyro_gm_share=_share(m.gyro_bias_sigma_rad_s, m.gyro_bias_ton_sigma_rad_s
-                                 if system.gyro_calibration_s is None else
-                                 m.gyro_arw_rad_sqrt_s / np.sqrt(system.gyro_calibration_s)),
+            accel_gm_share=nn.gm_share(m.accel_bias_sigma_m_s2, m.accel_bias_ton_sigma_m_s2),
+            gyro_gm_share=nn.gm_share(m.gyro_bias_sigma_rad_s, m.gyro_bias_ton_sigma_rad_s
+                                      if system.gyro_calibration_s is None else
+                                      m.gyro_arw_rad_sqrt_s / np.sqrt(system.gyro_calibration_s)),
             n_slots=int(cfg.n_slots),
             alpha=f1**2 / d,
             beta=-(f2**2) / d,
@@ -575,12 +575,6 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     euler = nn.euler_from_dcm(nn.dcm_from_quat(q))
     out = (llh, vel, euler, P[: nf.n_nav, : nf.n_nav], nis, int(used.sum()), gnss[i_clk])
     return new, out
-
-
-def _share(sigma_gm, sigma_ton):
-    var_gm = np.broadcast_to(np.asarray(sigma_gm, float), (3,)) ** 2
-    var = var_gm + np.broadcast_to(np.asarray(sigma_ton, float), (3,)) ** 2
-    return np.where(var > 0.0, var_gm / np.where(var > 0.0, var, 1.0), 1.0)
 
 
 def _to_numpy(tree):

@@ -379,6 +379,14 @@ def antenna_lever_arm(llh, vel, C, w_ib_b, lever_b):
     return llh_ant, vel_ant, J_llh, J_vel
 
 
+def gm_share(sigma_gm, sigma_ton):
+    """errors.gm_share for a lumped (INS15) bias block: sigma_gm^2 / (sigma_gm^2 + sigma_ton^2)
+    per axis, 1 where both are zero."""
+    var_gm = np.broadcast_to(np.asarray(sigma_gm, float), (3,)) ** 2
+    var = var_gm + np.broadcast_to(np.asarray(sigma_ton, float), (3,)) ** 2
+    return np.where(var > 0.0, var_gm / np.where(var > 0.0, var, 1.0), 1.0)
+
+
 def discretize(F, Qg, dt, squarings=3):
     """ekf.discretize: third-order series for Phi and Qd over dt / 2^k, then k doublings
     Qd <- Phi Qd Phi^T + Qd, Phi <- Phi Phi (symmetrised)."""

@@ -451,9 +451,8 @@ class NumpyLooseIns15:
         self.lever_b = np.asarray(lf.system.lever_b, float)
         self.tau_a, self.tau_g = tri(m.accel_bias_tau_s), tri(m.gyro_bias_tau_s)
         # errors.gm_share (INS15 lumps turn-on + drift): the drift share of a bias correction
-        var_a, var_g = tri(m.accel_bias_sigma_m_s2) ** 2, tri(m.gyro_bias_sigma_rad_s) ** 2
-        self.share_a = var_a / (var_a + tri(m.accel_bias_ton_sigma_m_s2) ** 2)
-        self.share_g = var_g / (var_g + tri(m.gyro_bias_ton_sigma_rad_s) ** 2)
+        self.share_a = nn.gm_share(m.accel_bias_sigma_m_s2, m.accel_bias_ton_sigma_m_s2)
+        self.share_g = nn.gm_share(m.gyro_bias_sigma_rad_s, m.gyro_bias_ton_sigma_rad_s)
         self.qc = np.concatenate(
             [
                 tri(m.accel_vrw_m_s_sqrt_s) ** 2,

@@ -209,6 +209,16 @@ def error_dynamics(
     return F, G, jnp.diag(qc)
 
 
+def _turn_on_sigmas(model: ImuErrorModel, gyro_calibration_s: Float[ArrayLike, ""] | None
+                    ) -> dict[str, Float[Array, "3"]]:
+    """Turn-on bias sigmas by drift block: the model's, the gyro's ARW / sqrt(T) after a
+    standstill calibration of T seconds (the mean of T seconds of white rate noise)."""
+    gyro_ton = _triad(model.gyro_bias_ton_sigma_rad_s)
+    if gyro_calibration_s is not None:
+        gyro_ton = _triad(model.gyro_arw_rad_sqrt_s) / jnp.sqrt(gyro_calibration_s)
+    return {"accel_bias": _triad(model.accel_bias_ton_sigma_m_s2), "gyro_bias": gyro_ton}
+
+
 def sensor_initial_std(layout: StateLayout, model: ImuErrorModel,
                        gyro_calibration_s: Float[ArrayLike, ""] | None = None
                        ) -> Float[Array, " n"]:
@@ -221,13 +231,7 @@ def sensor_initial_std(layout: StateLayout, model: ImuErrorModel,
     ARW / sqrt(T) instead (the mean of T seconds of white rate noise).
     """
     std = jnp.zeros(layout.size, jnp.float64)
-    gyro_ton = _triad(model.gyro_bias_ton_sigma_rad_s)
-    if gyro_calibration_s is not None:
-        gyro_ton = _triad(model.gyro_arw_rad_sqrt_s) / jnp.sqrt(gyro_calibration_s)
-    ton = {
-        "accel_bias": _triad(model.accel_bias_ton_sigma_m_s2),
-        "gyro_bias": gyro_ton,
-    }
+    ton = _turn_on_sigmas(model, gyro_calibration_s)
     for name in _GM_BLOCKS:
         if layout.has(name):
             _, sigma = _gm_params(model, name)
@@ -293,13 +297,10 @@ def gm_share(model: ImuErrorModel, layout: StateLayout,
     standstill gyro calibration the gyro's turn-on prior is ARW / sqrt(T), as in
     ``sensor_initial_std``.
     """
-    gyro_ton = model.gyro_bias_ton_sigma_rad_s
-    if gyro_calibration_s is not None:
-        gyro_ton = model.gyro_arw_rad_sqrt_s / jnp.sqrt(gyro_calibration_s)
     out = []
-    for name, ton in (("accel_bias", model.accel_bias_ton_sigma_m_s2), ("gyro_bias", gyro_ton)):
+    for name, ton in _turn_on_sigmas(model, gyro_calibration_s).items():
         _, sigma = _gm_params(model, name)
-        ton = 0.0 if layout.has(name + "_ton") else _triad(ton)
+        ton = 0.0 if layout.has(name + "_ton") else ton
         var = sigma**2 + ton**2
         out.append(jnp.where(var > 0.0, sigma**2 / jnp.where(var > 0.0, var, 1.0), 1.0))
     return out[0], out[1]

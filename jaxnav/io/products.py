@@ -21,6 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxnav.core.gpstime import datetime64_to_gps_seconds
+from jaxnav.geodesy import C_LIGHT
 from jaxnav.gnss.interp import (  # noqa: F401  (re-exported: the interpolators of these tables)
     ClockInterp,
     GridTable,
@@ -589,9 +590,7 @@ def read_ionex(path: str | PathLike) -> IonexMaps:
     )
 
 
-
-
-_NS_TO_M = 299792458.0 * 1e-9
+_NS_TO_M = C_LIGHT * 1e-9
 
 
 def read_code_dcb(path: str | PathLike) -> dict[str, float]:
