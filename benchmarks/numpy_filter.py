@@ -179,10 +179,11 @@ class NumpyTightFilter:
     n_slots: int
     alpha: np.ndarray  # [S] IF coefficients
     beta: np.ndarray
-    code_sigma_m: float
+    code_sigma_m: float  # zenith, white + white-equivalent multipath at the epoch interval
     phase_sigma_m: float
     doppler_sigma_m_s: float
-    product_sigma_m: float
+    product_var_m2: float  # orbit^2 + clock^2 (code rows)
+    ambiguity_psd: float  # 2 sigma^2 / tau of orbit and clock (the ambiguities' random walk)
     elevation_mask_rad: float
     prefit_code_m: float
     gate_chi2: float
@@ -245,10 +246,14 @@ class NumpyTightFilter:
             n_slots=int(cfg.n_slots),
             alpha=f1**2 / d,
             beta=-(f2**2) / d,
-            code_sigma_m=float(cfg.code_sigma_m),
-            phase_sigma_m=float(cfg.phase_sigma_m),
+            code_sigma_m=_with_multipath(cfg.code_sigma_m, cfg.multipath_code_sigma_m, cfg,
+                                         tf.epoch_dt_s),
+            phase_sigma_m=_with_multipath(cfg.phase_sigma_m, cfg.multipath_phase_sigma_m, cfg,
+                                          tf.epoch_dt_s),
             doppler_sigma_m_s=float(cfg.doppler_sigma_m_s),
-            product_sigma_m=float(cfg.product_sigma_m),
+            product_var_m2=float(cfg.orbit_sigma_m**2 + cfg.sat_clock_sigma_m**2),
+            ambiguity_psd=float(2.0 * cfg.orbit_sigma_m**2 / cfg.orbit_tau_s
+                                + 2.0 * cfg.sat_clock_sigma_m**2 / cfg.sat_clock_tau_s),
             elevation_mask_rad=float(cfg.elevation_mask_rad),
             prefit_code_m=float(cfg.prefit_code_m),
             gate_chi2=float(cfg.gate_chi2),
@@ -260,6 +265,13 @@ class NumpyTightFilter:
             clock_init_sigma_m=float(cfg.clock_init_sigma_m),
             ambiguity_init_sigma_m=float(cfg.ambiguity_init_sigma_m),
         )
+
+
+def _with_multipath(white_m, multipath_m, cfg, dt_s) -> float:
+    """sqrt(white^2 + sum over all lags of the multipath's AR(1) autocovariance)."""
+    rho = np.exp(-float(dt_s) / float(cfg.multipath_tau_s))
+    lags = float(multipath_m) ** 2 * (1.0 + 2.0 * rho / (1.0 - rho))
+    return float(np.sqrt(float(white_m) ** 2 + lags))
 
 
 # ---- INS error model (ins/errors.py) -----------------------------------------------------------
@@ -287,6 +299,8 @@ def _process_model(nf: NumpyTightFilter, llh, vel, C, f_b):
     Qg[L.i("clock_bias"), L.i("clock_bias")] = nf.clock_bias_psd
     Qg[L.i("clock_drift"), L.i("clock_drift")] = nf.clock_drift_psd
     Qg[L.i("zwd"), L.i("zwd")] = nf.zwd_psd
+    amb = np.arange(L.sl("amb").start, L.sl("amb").stop)
+    Qg[amb, amb] = nf.ambiguity_psd
     return F, Qg
 
 
@@ -510,7 +524,7 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     H_dop[:, i_drift] += 1.0
     sig_scale = _elevation_sigma(1.0, el)
     if_noise = np.sqrt(nf.alpha**2 + nf.beta**2)
-    prod = nf.product_sigma_m**2
+    prod = nf.product_var_m2
     dz = np.concatenate(
         [
             geo_pred - code_if,
@@ -522,7 +536,7 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     r_var = np.concatenate(
         [
             (nf.code_sigma_m * sig_scale * if_noise) ** 2 + prod,
-            (nf.phase_sigma_m * sig_scale * if_noise) ** 2 + prod,
+            (nf.phase_sigma_m * sig_scale * if_noise) ** 2,
             (nf.doppler_sigma_m_s * sig_scale) ** 2,
         ]
     )

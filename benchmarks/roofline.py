@@ -218,19 +218,21 @@ def main(argv=None) -> int:
 
     # The covariance scan consumes each epoch's own (nav, mean inputs): with fixed ones XLA hoists
     # F, G, Qc, Phi and Qd out of the loop and times only Phi P Phi^T + Qd.
-    def cov(c, navs, means):
+    def cov(c, navs, means, obs):
         def body_fn(P, x):
-            nav, mean_in = x
-            return tight._propagate_covariance(tf, layout, c._replace(P=P), nav, mean_in), None
-        return jax.lax.scan(body_fn, c.P, (navs, means))[0]
+            nav, mean_in, ob = x
+            return tight._propagate_covariance(tf, layout, c._replace(P=P), nav, mean_in,
+                                               ob), None
+        return jax.lax.scan(body_fn, c.P, (navs, means, obs))[0]
 
     mech_fn = jax.jit(jax.vmap(mech))
     t_mech, _ = best_time(mech_fn, (carry_b, inputs_b.samples), cfg["calls"])
     navs_b, means_b = mech_fn(carry_b, inputs_b.samples)
-    t_cov, _ = best_time(jax.jit(jax.vmap(cov)), (carry_b, navs_b, means_b), cfg["calls"])
+    t_cov, _ = best_time(jax.jit(jax.vmap(cov)), (carry_b, navs_b, means_b, inputs_b.obs),
+                         cfg["calls"])
     cost_cov, _ = xla_cost(
-        jax.vmap(lambda c, nv, mi: tight._propagate_covariance(tf, layout, c, nv, mi)),
-        carry_b, nav_b, mean_in_b)
+        jax.vmap(lambda c, nv, mi, ob: tight._propagate_covariance(tf, layout, c, nv, mi, ob)),
+        carry_b, nav_b, mean_in_b, inp0.obs)
     cov_flops = cost_cov["flops"] / B
     t_rest = max(t_min - t_mech - t_cov, 0.0)
     # Shares of the sum of the parts (the sub-steps are timed after the window, so on a loaded

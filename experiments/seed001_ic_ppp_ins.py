@@ -525,8 +525,9 @@ the differences:
   correlation time (3600 s) and scale factors (300 ppm) are chosen (`jaxnav/sim/sensors.py`).
   The factory simulates the IMU at 100 Hz (the seed: 200 Hz).
 - GNSS: GPS only, 1 Hz, 16 slots, a nominal constellation (mean ~7 satellites above 10 deg vs
-  the seed's 8.1 airborne / 7.0 vehicle). Code sigma 0.5 m zenith (S001: 0.2 m; chosen in
-  `gnss/ppp.py` to absorb the simulator's 0.2 m / 30 s correlated multipath), phase 3 mm.
+  the seed's 8.1 airborne / 7.0 vehicle). Code sigma 0.2 m white zenith (S001), phase 2 mm,
+  plus the white-equivalent variance of the simulator's 0.2 m / 2 mm, 30 s multipath
+  (`gnss/ppp.py`, docs/models.md: 1.55 m / 1.5 cm at 1 Hz).
 - Ionosphere: the simulator's truth is the broadcast-model delay times (1 + 0.3 g(t)) with g a
   per-satellite second-order Gauss-Markov process (tau 1800 s). The IC-PPP filter's "GIM" is
   `[scenario] iono_model = "gim"`: truth + 0.25 x (broadcast - truth), i.e. a map whose error

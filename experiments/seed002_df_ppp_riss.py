@@ -398,8 +398,9 @@ any seed") that drive the differences:
   correlation times and most KVH figures are chosen (`jaxnav/sim/sensors.py`); OBD-II speed
   (integer km/h quantisation). The consumer IMU `lsm6dsl` has chosen in-run figures.
 - GNSS: nominal GPS + GLONASS constellations (16 + 14 slots), 10 deg mask (S002: 7 deg), code
-  sigma 0.5 m zenith (GLONASS x3), phase = code / 100 (GLONASS x1.5), 0.2 m correlated
-  multipath; precise products with a 3 cm residual.
+  sigma 0.2 m white zenith (GLONASS x3) plus the white-equivalent variance of the 0.2 m,
+  30 s multipath, phase 2 mm + 2 mm multipath (GLONASS x1.5); precise products with a
+  2.5 cm orbit / 2 cm clock residual (a random walk on each ambiguity in the filter).
 - Filters start from the true state after a 60 s static calibration; a slot's ambiguity
   restarts after every gap (SEED_SPEC 5), so every outage means a PPP re-convergence.
 - Partial outages keep the highest satellites (the rule is not in the seeds).

@@ -13,11 +13,13 @@ agrees to 1e-14 in P; the full runs to the tolerances below, set ~10x above the 
 A 1 % change of one row's sigma moves the results ~1000x beyond them (test_tolerance_can_fail).
 """
 
+import dataclasses
 import importlib.util
 import sys
 import time
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -82,6 +84,11 @@ def _stress_inputs(inputs, elevation):
 def case():
     factory = SimFactory({"duration_s": 600, "slots": [12, 14, 14], "ins_grade": "span_cpt"})
     prob = factory.build(None, "float_ppp", "ins15", 0)
+    # Code multipath 6 cm (white-equivalent 0.46 m at 1 s) with the 0.2 m white noise: the IF
+    # code sigma is 1.5 m at zenith, so that the outliers of _stress_inputs fall where they must
+    # (8 m fails the post-fit test, 15 m the gate, both below the 20-m pre-fit threshold).
+    cfg = dataclasses.replace(prob.tf.cfg, multipath_code_sigma_m=0.06)
+    prob = prob._replace(tf=eqx.tree_at(lambda t: t.cfg, prob.tf, cfg))
     nominal = jax.tree.map(lambda a: np.array(a[:T]), prob.inputs)
     stress = _stress_inputs(nominal, np.asarray(prob.elevation)[:T])
     nf = nfm.NumpyTightFilter.from_jax(prob.tf)
@@ -192,10 +199,6 @@ def test_postfit_off_keeps_the_outlier(case):
     """``postfit_sigma=None``: one update per epoch, no post-fit redo. Identical to the default
     until its first post-fit rejection (at 3 sigma of the post-fit covariance a clean epoch
     can have one too), and the 8-m code outlier of epoch 128 is used."""
-    import dataclasses
-
-    import equinox as eqx
-
     prob, _, out = case
     inputs, _, ref, _, _ = out["stress"]
     tf_off = eqx.tree_at(lambda t: t.cfg, prob.tf,

@@ -294,6 +294,8 @@ def _run(prep, model, mode="float_ppp"):
         doppler=False,
         estimate_zwd=mode != "sf_code",
         clock_bias_psd_m2_s=app.CLOCK_PSD_M2_S,
+        code_sigma_m=app.REAL_CODE_SIGMA_M,
+        sf_code_sigma_m=app.REAL_CODE_SIGMA_M,
     )
     _, out = app.run_ppp(prep, cfg, ppp_only.GnssOnlySystem(model=model), 30.0)
     return out
@@ -365,7 +367,7 @@ def test_static_dual_frequency_ppp_converges_to_the_itrf_coordinate(dual, golden
     sig = np.sqrt(np.asarray(out.P_nav)[:, 0, 0]) * float(
         geodesy.metres_per_radian(jnp.asarray(np.asarray(out.llh)[-1]))[0]
     )
-    assert sig[-1] < 0.05 < sig[0]
+    assert sig[-1] < 0.10 < sig[0]  # the filter claims the S002 convergence it reached
     assert int(np.min(np.asarray(out.n_sat)[10:])) >= 5
     # slips: a handful of real arcs over 2 h, not a detector firing at every epoch
     assert sum(dual.slip_counts.values()) < 10

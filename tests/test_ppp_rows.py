@@ -105,13 +105,14 @@ def test_rows_match_autodiff(mode, bssd):
                     dx, 0.0,
                 )
             rx = system.antenna(nav_c, mean, sens, layout)
-            rows, _ = ppp.measurement_rows(cfg, layout, slots, obs, rx, est, keep, hatch, 180.0)
+            rows, _ = ppp.measurement_rows(cfg, layout, slots, obs, rx, est, keep, hatch, 180.0,
+                                           1.0)
             return rows.dz
 
         dx0 = jnp.zeros(layout.size)
         rows, _ = ppp.measurement_rows(
             cfg, layout, slots, obs, system.antenna(nav, mean, sens, layout), gnss_est, keep,
-            hatch, 180.0,
+            hatch, 180.0, 1.0,
         )
         J = -jax.jit(jax.jacfwd(rows_at))(dx0)
         H = rows.H
@@ -142,7 +143,7 @@ def test_ic_ppp_gim_is_a_reset_prior_by_default_and_a_row_per_epoch_on_request()
         tf = tight.TightFilter(system, cfg, slots, 0.01, 1.0)
         rx = system.antenna(nav, mean, system.zero_sensors(), tf.layout)
         rows, el = ppp.measurement_rows(cfg, tf.layout, slots, obs, rx, jnp.zeros(tf.layout.size),
-                                        keep, hatch, 180.0)
+                                        keep, hatch, 180.0, 1.0)
         kinds[cons] = int(np.sum(np.asarray(rows.kind == ppp.KIND_IONO) & np.asarray(rows.mask)))
         restart = jnp.asarray(np.arange(S) % 2 == 0)
         P0 = jnp.eye(tf.layout.size) * 1e4
@@ -177,10 +178,10 @@ def test_ic_ppp_ambiguity_reset_includes_the_receiver_dcb():
     rx = system.antenna(nav, mean, system.zero_sensors(), layout)
     est0 = jnp.zeros(layout.size).at[layout.i("dcb")].set(1.7)
     keep, hatch = jnp.ones(S, bool), ppp.HatchState.empty(S)
-    _, el = ppp.measurement_rows(cfg, layout, slots, obs, rx, est0, keep, hatch, 180.0)
+    _, el = ppp.measurement_rows(cfg, layout, slots, obs, rx, est0, keep, hatch, 180.0, 1.0)
     est, _ = tight._reset_slots(tf, layout, est0, jnp.eye(layout.size), obs, jnp.ones(S, bool),
                                 el)
-    rows, _ = ppp.measurement_rows(cfg, layout, slots, obs, rx, est, keep, hatch, 180.0)
+    rows, _ = ppp.measurement_rows(cfg, layout, slots, obs, rx, est, keep, hatch, 180.0, 1.0)
     dz = np.asarray(rows.dz).reshape(-1, S)  # code 1, code 2, phase 1, phase 2 blocks
     kind = np.asarray(rows.kind).reshape(-1, S)[:, 0]
     assert list(kind[:4]) == [ppp.KIND_CODE, ppp.KIND_CODE, ppp.KIND_PHASE, ppp.KIND_PHASE]
@@ -204,8 +205,8 @@ def test_missing_doppler_or_model_ionosphere_gives_no_row_never_a_zero(mode):
     lacking = jnp.asarray(np.arange(S) == 2)
     holes = obs._replace(doppler_ok=~lacking, iono_model_ok=~jnp.roll(lacking, 1))
     est = jnp.zeros(tf.layout.size)
-    full, _ = ppp.measurement_rows(cfg, tf.layout, slots, obs, rx, est, keep, hatch, 180.0)
-    got, _ = ppp.measurement_rows(cfg, tf.layout, slots, holes, rx, est, keep, hatch, 180.0)
+    full, _ = ppp.measurement_rows(cfg, tf.layout, slots, obs, rx, est, keep, hatch, 180.0, 1.0)
+    got, _ = ppp.measurement_rows(cfg, tf.layout, slots, holes, rx, est, keep, hatch, 180.0, 1.0)
     kind = np.asarray(got.kind).reshape(-1, S)[:, 0]
     m_full = np.asarray(full.mask).reshape(-1, S)
     m_got = np.asarray(got.mask).reshape(-1, S)

@@ -109,7 +109,7 @@ def test_epoch_without_satellites_is_mechanization_plus_covariance_propagation(d
     assert int(out.dof) == 0
 
     nav, mean = system.propagate(carry.nav, carry.sensors, inp.samples, tf.imu_dt_s)
-    P = tight._propagate_covariance(tf, tf.layout, carry, nav, mean)
+    P = tight._propagate_covariance(tf, tf.layout, carry, nav, mean, inp.obs)
     # the same computation compiled in two contexts: equal to round-off (no update happened)
     np.testing.assert_allclose(np.asarray(new.P), np.asarray(P), rtol=0,
                                atol=1e-12 * float(np.abs(np.asarray(P)).max()))

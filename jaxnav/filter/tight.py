@@ -128,18 +128,21 @@ def initial_carry(
 
 
 def _propagate_covariance(
-    tf: TightFilter, layout: StateLayout, carry: Carry, nav, mean_inputs
+    tf: TightFilter, layout: StateLayout, carry: Carry, nav, mean_inputs, obs: ppp.GnssObs
 ) -> Float[Array, "n n"]:
     """P <- Phi P Phi^T + Qd for the joint navigation + GNSS error model over one epoch.
 
     The two blocks are independent (no F or noise couples them) and discretised apart: the
     system's by ``ekf.discretize`` with its squarings (RISS16's Gauss-Markov velocity terms have
     beta dt = 1), the GNSS block's (clock bias' = drift, random walks) exactly by its
-    third-order series alone (nilpotent F)."""
+    third-order series alone (nilpotent but for the slow Gauss-Markov blocks, |F dt| << 1).
+    ``obs``: the epoch's observations, for process noise that scales with a model (sf_code's
+    ionosphere residual)."""
     n_sys = tf.system.layout.size
     n = layout.size
     F_sys, G_sys, Qc_sys = tf.system.dynamics(nav, mean_inputs, carry.sensors)
-    F_g, q_g = ppp.gnss_dynamics(tf.cfg, layout, carry.elevation, skip=tf.system.layout.names)
+    F_g, q_g = ppp.gnss_dynamics(tf.cfg, layout, carry.elevation, obs,
+                                 skip=tf.system.layout.names)
     Phi_s, Qd_s = ekf.discretize(F_sys, G_sys, Qc_sys, tf.epoch_dt_s)
     Phi_g, Qd_g = ekf.discretize(F_g[n_sys:, n_sys:], jnp.eye(n - n_sys), jnp.diag(q_g[n_sys:]),
                                  tf.epoch_dt_s, squarings=0)
@@ -282,23 +285,23 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
     layout = tf.layout
     cfg = tf.cfg
     nav, mean_inputs = tf.system.propagate(carry.nav, carry.sensors, inp.samples, tf.imu_dt_s)
-    P = _propagate_covariance(tf, layout, carry, nav, mean_inputs)
+    P = _propagate_covariance(tf, layout, carry, nav, mean_inputs, inp.obs)
     # x_hat <- Phi x_hat for the sensor estimates: Gauss-Markov shares decay (issue 16, defect 4)
     carry = carry._replace(sensors=tf.system.predict_sensors(carry.sensors, tf.epoch_dt_s))
-    gnss_est = carry.gnss_est
-    if layout.has("clock_bias"):  # nominal clock dynamics: bias' = drift (the only non-RW state)
-        drift = gnss_est[layout.i("clock_drift")]
-        gnss_est = gnss_est.at[layout.i("clock_bias")].add(drift * tf.epoch_dt_s)
+    gnss_est = ppp.gnss_nominal_predict(cfg, layout, carry.gnss_est, tf.epoch_dt_s)
 
     rx = tf.system.antenna(nav, mean_inputs, carry.sensors, layout)
     usable, el = _slot_usable(tf, rx, inp.obs, inp.keep)
     restart = usable & (~carry.tracked | inp.obs.slip)
-    gnss_est, P = _reset_slots(tf, layout, gnss_est, P, inp.obs, restart, el)
+    # a slip restarts the carrier's states (and the Hatch window), not a code mode's ionosphere
+    restart_states = restart if cfg.uses_phase else usable & ~carry.tracked
+    gnss_est, P = _reset_slots(tf, layout, gnss_est, P, inp.obs, restart_states, el)
     hatch = cfg.model.update_memory(cfg, carry.hatch, ppp.combos(tf.slots, inp.obs), usable,
                                     restart)
 
     rows, _ = ppp.measurement_rows(
-        cfg, layout, tf.slots, inp.obs, rx, gnss_est, inp.keep, hatch, inp.day_of_year
+        cfg, layout, tf.slots, inp.obs, rx, gnss_est, inp.keep, hatch, inp.day_of_year,
+        tf.epoch_dt_s,
     )
     if tf.nhc_sigma_m_s is not None:  # the constraint joins the same update (module docstring)
         rows = core_rows.stack_rows(rows, _nhc_rows(tf, layout, nav))

@@ -109,6 +109,20 @@ def elevation_sigma(
     return jnp.where(elevation_rad >= jnp.pi / 6, sigma_zenith, sigma_zenith / (2.0 * s))
 
 
+def white_equivalent_var(
+    sigma: Float[ArrayLike, "*S"], tau_s: Float[ArrayLike, ""], dt_s: Float[ArrayLike, ""]
+) -> Float[Array, "*S"]:
+    """sigma^2 (1 + rho) / (1 - rho), rho = exp(-dt / tau): the variance per update of the white
+    sequence whose spectral density at zero frequency equals that of the first-order
+    Gauss-Markov error (sigma, tau) sampled every dt (sum of its autocovariance over all lags).
+
+    A filter that weights each epoch as independent averages an error of this kind as if it
+    were white; with this variance its time averages carry the right uncertainty
+    (-> 2 tau / dt sigma^2 for dt << tau, -> sigma^2 for dt >> tau)."""
+    rho = jnp.exp(-jnp.asarray(dt_s) / tau_s)
+    return jnp.square(sigma) * (1.0 + rho) / (1.0 - rho)
+
+
 def single_difference_matrix(n_slots: int, ref_slot: Int[ArrayLike, ""]) -> Float[Array, "S S"]:
     """Between-satellite differencing D = I - e_ref 1^T restricted to rows != ref (S004, S002 2.39).
 

@@ -44,6 +44,7 @@ from jaxnav.gnss.ppp_data import (
 __all__ = [
     "KIND_CODE", "KIND_DOPPLER", "KIND_IONO", "KIND_PHASE", "Combos", "GnssObs", "HatchState",
     "PppConfig", "Receiver", "Rows", "SlotInfo", "combos", "gnss_blocks", "gnss_dynamics",
+    "gnss_nominal_predict",
     "gnss_initial_std", "hatch_update", "iono_model_var", "iono_rw_sigma", "measurement_rows",
     "slot_state_resets",
 ]
@@ -63,13 +64,22 @@ class PppConfig(eqx.Module):
     doppler: bool = eqx.field(static=True, default=True)
     estimate_zwd: bool = eqx.field(static=True, default=True)
     bssd: bool = eqx.field(static=True, default=False)
-    # Zenith a-priori sigmas of the raw observables, scaled by S001 eq 11 with elevation.
-    # S001 uses 0.2 m for P1/P2. Chosen 0.5 m: the simulator adds a 0.2 m multipath with a 30 s
-    # correlation time, which a filter weighting each epoch as independent must absorb
-    # (measured: position NEES 4.6 at 0.6 m, 17 at 0.3 m over a 15-min drive).
-    code_sigma_m: float = 0.5
-    phase_sigma_m: float = 0.003  # S002: phase = code / 100
+    # Stochastic model of the raw observables: white noise plus multipath, both with S001 eq 11's
+    # elevation law, and the products' residuals. Each error a filter cannot follow as a state
+    # enters the rows with its white-equivalent variance (``models.white_equivalent_var``: the
+    # same low-frequency power at the update interval), so that the filter's long averages are
+    # as uncertain as the correlated errors make them (issue 16: before, a white 0.5 m code and a
+    # white 3 cm product term, position NEES 7-32 in the realistic simulator).
+    code_sigma_m: float = 0.2  # white, zenith: S001 eq 11 (P1/P2; also Galileo E1/E5a)
+    sf_code_sigma_m: float = 0.3  # white, zenith, C/A code of the single-frequency modes: chosen
+    phase_sigma_m: float = 0.002  # white, zenith: S001 eq 11
     doppler_sigma_m_s: float = 0.1  # S001 eq 11
+    # Multipath: first-order Gauss-Markov per band (zenith sigma with the elevation law, tau).
+    # Code sigma from the ESBC code-minus-carrier calibration (docs/simulation.md); tau chosen
+    # for a moving antenna (a static one decorrelates over minutes); phase: code / 100 (S002).
+    multipath_code_sigma_m: float = 0.2
+    multipath_phase_sigma_m: float = 0.002
+    multipath_tau_s: float = 30.0
     glonass_code_factor: float = 3.0  # S002
     glonass_phase_factor: float = 1.5  # S002
     # Ionosphere model residual (SF rows and IC-PPP pseudo-observations): 1-sigma =
@@ -77,10 +87,19 @@ class PppConfig(eqx.Module):
     # (the simulator leaves 30 %); a GIM ~ 2 TECU (0.3 m at L1, S001 eq 7 sigma_ion,0).
     iono_model_residual_fraction: float = 0.3
     iono_model_residual_floor_m: float = 0.3
-    # Orbit + clock residual of the products, common to code and phase of a satellite (chosen:
-    # IGS-final level, 2.5 cm orbit + 2 cm clock; the filter has no state for it).
-    product_sigma_m: float = 0.03
-    sdf_sigma_floor_fraction: float = 0.35  # chosen: smoothed code keeps >= 35 % of its noise
+    # Its correlation time: sf_code's per-slot residual state is first-order Gauss-Markov with
+    # it (chosen: the model's errors follow the ionosphere's tens-of-minutes structures).
+    iono_model_residual_tau_s: float = 1800.0
+    # Precise-product residuals (truth - product), first-order Gauss-Markov per satellite,
+    # common to its code and phase: IGS final orbits ~2.5 cm per axis (so along any line of
+    # sight) and clocks ~75 ps RMS (2.2 cm); correlation times chosen (an orbit arc, a clock
+    # session). Phase rows: a random walk on the ambiguity with the processes' PSD
+    # 2 sigma^2 / tau (their drift over a pass; the constant part is the ambiguity's); code rows:
+    # the white sigma^2 (negligible beside the code's multipath).
+    orbit_sigma_m: float = 0.025
+    orbit_tau_s: float = 3600.0
+    sat_clock_sigma_m: float = 0.02
+    sat_clock_tau_s: float = 1800.0
     hatch_window: int = eqx.field(static=True, default=100)  # chosen: 100 epochs (S000: silent)
     elevation_mask_rad: float = 0.17453292519943295  # 10 deg (S000 QC mask; S002 used 7 deg)
     prefit_code_m: float = 20.0  # S002: coarse pre-fit threshold for code
@@ -135,6 +154,29 @@ class PppConfig(eqx.Module):
     def uses_phase(self) -> bool:
         return self.model.uses_phase
 
+    def zenith_sigmas(self, epoch_dt_s: Float[ArrayLike, ""]
+                      ) -> tuple[Float[Array, ""], Float[Array, ""]]:
+        """Zenith sigmas [m] of one raw code and one raw phase per update every ``epoch_dt_s``:
+        sqrt(white^2 + white-equivalent multipath variance) (``models.white_equivalent_var``)."""
+        white = self.sf_code_sigma_m if self.model.single_frequency else self.code_sigma_m
+        code = white**2 + models.white_equivalent_var(
+            self.multipath_code_sigma_m, self.multipath_tau_s, epoch_dt_s)
+        phase = self.phase_sigma_m**2 + models.white_equivalent_var(
+            self.multipath_phase_sigma_m, self.multipath_tau_s, epoch_dt_s)
+        return jnp.sqrt(code), jnp.sqrt(phase)
+
+    @property
+    def product_var_m2(self) -> Float[ArrayLike, ""]:
+        """Variance of the products' residual on one line of sight: orbit^2 + clock^2."""
+        return self.orbit_sigma_m**2 + self.sat_clock_sigma_m**2
+
+    @property
+    def ambiguity_psd_m2_s(self) -> Float[ArrayLike, ""]:
+        """Random-walk PSD on a carrier ambiguity that follows the products' residual over a
+        pass: 2 sigma^2 / tau of each first-order Gauss-Markov process (its low-lag increments)."""
+        return (2.0 * self.orbit_sigma_m**2 / self.orbit_tau_s
+                + 2.0 * self.sat_clock_sigma_m**2 / self.sat_clock_tau_s)
+
 
 _ISB_BLOCK = {signals.SYS_GLO: "isb_glo", signals.SYS_GAL: "isb_gal"}
 
@@ -156,13 +198,16 @@ def gnss_blocks(cfg: PppConfig, have_clock: bool = False) -> tuple[tuple[str, in
 
 
 def gnss_dynamics(
-    cfg: PppConfig, layout: StateLayout, elevation_rad: Float[Array, " S"], skip=()
+    cfg: PppConfig, layout: StateLayout, elevation_rad: Float[Array, " S"], obs: GnssObs,
+    skip=()
 ) -> tuple[Float[Array, "n n"], Float[Array, " n"]]:
     """Continuous F and diagonal process-noise PSD q (n-vector) of the GNSS blocks in ``layout``.
 
-    Clock: bias' = drift, PSDs of S001 eq 16; ISB and ZWD: random walks; the mode's blocks as
-    its ``process_noise`` says (ambiguities: constants). Blocks absent from ``layout`` or named
-    in ``skip`` (modelled by the navigation system, e.g. the clock of seed 000's 16-state RISS)
+    Clock: bias' = drift, PSDs of S001 eq 16; ISB and ZWD: random walks; carrier ambiguities:
+    random walks of ``PppConfig.ambiguity_psd_m2_s`` (the products' residual); blocks with a
+    correlation time: x' = -x / tau; the rest of the mode's blocks as its ``process_noise``
+    says (from the epoch's observations ``obs``). Blocks absent from ``layout`` or named in
+    ``skip`` (modelled by the navigation system, e.g. the clock of seed 000's 16-state RISS)
     are left zero.
     """
     n = layout.size
@@ -177,8 +222,30 @@ def gnss_dynamics(
             q = q.at[layout.i(name)].set(cfg.isb_psd_m2_s)
     if layout.has("zwd"):
         q = q.at[layout.i("zwd")].set(cfg.zwd_psd_m2_s)
-    q = cfg.model.process_noise(cfg, layout, elevation_rad, q)
+    for b in cfg.model.blocks:
+        if not layout.has(b.name):
+            continue
+        if b.ambiguity:
+            q = q.at[layout.sl(b.name)].set(cfg.ambiguity_psd_m2_s)
+        if b.tau is not None:
+            idx = jnp.arange(layout.sl(b.name).start, layout.sl(b.name).stop)
+            F = F.at[idx, idx].set(-1.0 / getattr(cfg, b.tau))
+    q = cfg.model.process_noise(cfg, layout, elevation_rad, q, obs)
     return F, q
+
+
+def gnss_nominal_predict(cfg: PppConfig, layout: StateLayout, gnss_est: Float[Array, " n"],
+                         dt_s: Float[ArrayLike, ""]) -> Float[Array, " n"]:
+    """x_hat <- Phi x_hat of the GNSS totals over dt: clock bias += drift dt, and the blocks
+    with a correlation time decay as exp(-dt / tau) (the other states are random walks)."""
+    if layout.has("clock_bias"):
+        drift = gnss_est[layout.i("clock_drift")]
+        gnss_est = gnss_est.at[layout.i("clock_bias")].add(drift * dt_s)
+    for b in cfg.model.blocks:
+        if b.tau is not None and layout.has(b.name):
+            sl = layout.sl(b.name)
+            gnss_est = gnss_est.at[sl].multiply(jnp.exp(-dt_s / getattr(cfg, b.tau)))
+    return gnss_est
 
 
 def gnss_initial_std(cfg: PppConfig, layout: StateLayout) -> Float[Array, " n"]:
@@ -264,11 +331,13 @@ def measurement_rows(
     outage_keep: Bool[Array, " S"],
     hatch: HatchState,
     day_of_year: Real[ArrayLike, ""],
+    epoch_dt_s: Float[ArrayLike, ""],
 ) -> tuple[Rows, Float[Array, " S"]]:
     """All rows of the configured mode at one epoch, and the per-slot elevation [rad].
 
     ``outage_keep`` [S] bool is the study's availability mask (False = withheld). Rows of one
     kind are blocks of S (code, then phase, then Doppler, then ionosphere pseudo-observations).
+    ``epoch_dt_s``: the update interval, which sets the white-equivalent variance of multipath.
     """
     S = cfg.n_slots
     geo = models.geometry(rx.pos_ecef, rx.vel_ecef, obs.sat)
@@ -304,8 +373,9 @@ def measurement_rows(
     cmb = combos(slots, obs)
     sig_scale = models.elevation_sigma(1.0, el)
     glo = slots.system == signals.SYS_GLO
-    code_sigma = cfg.code_sigma_m * jnp.where(glo, cfg.glonass_code_factor, 1.0) * sig_scale
-    phase_sigma = cfg.phase_sigma_m * jnp.where(glo, cfg.glonass_phase_factor, 1.0) * sig_scale
+    code_zenith, phase_zenith = cfg.zenith_sigmas(epoch_dt_s)
+    code_sigma = code_zenith * jnp.where(glo, cfg.glonass_code_factor, 1.0) * sig_scale
+    phase_sigma = phase_zenith * jnp.where(glo, cfg.glonass_phase_factor, 1.0) * sig_scale
     if_noise = jnp.sqrt(cmb.alpha**2 + cmb.beta**2)
     geo_pred = geo.range_m + rx_clock + trop
 
@@ -322,7 +392,7 @@ def measurement_rows(
         phase_sigma=phase_sigma,
         if_noise=if_noise,
         iono_var=iono_model_var(cfg, obs.iono_model_l1_m, el),
-        product_var=cfg.product_sigma_m**2,  # not amplified by the IF combination: added after
+        product_var=cfg.product_var_m2,  # not amplified by the IF combination: added after
     )
     mode = cfg.model
     blocks = [tuple(b) for b in mode.rows(cfg, ctx)]  # (dz, H, var, mask, kind)

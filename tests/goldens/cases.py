@@ -18,6 +18,13 @@ sensor estimates decay with their tau (defect 4) and the RISS output covariance 
 (the re-derived velocity). Positions moved by at most 2.0 cm (sdf_code/riss9), velocities
 5e-4, attitude 3e-4, NIS 1.3e-2 and the final P_nav 2.9e-2 of their largest values; integer
 fields (satellites used and gated) not at all.
+
+Rewritten (2026-12-02 evening, issue 16) for the stochastic model of time-correlated errors
+(white-equivalent multipath weights, products as ambiguity random walks, sf_code's ionosphere
+residual state, sdf_code weighted as raw code): positions moved by at most 3.3 cm
+(sdf_code/riss9), velocities 3e-3 and attitude 1e-2 of their largest values, NIS up to 0.35,
+the position sigmas up to 1.4x (per-epoch diagonal) and 9.7x (final P, sdf_code: its smoothed
+code is no longer weighted below the raw code's variance); integer fields not at all.
 """
 
 from __future__ import annotations

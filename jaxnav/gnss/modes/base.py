@@ -41,6 +41,10 @@ class Block(NamedTuple):
     name: str  # the state name (core/states.py layout)
     per_slot: bool  # one state per satellite slot (restarted on rise / slip / return), else one
     init_sigma: str  # the PppConfig field holding its initial and reset sigma
+    # a carrier ambiguity (metres): it also follows the products' residual over a pass
+    ambiguity: bool = False
+    # the PppConfig field holding its correlation time (first-order Gauss-Markov), or None
+    tau: str | None = None
 
 
 class RowBlock(NamedTuple):
@@ -64,8 +68,10 @@ class RowContext(NamedTuple):
     usable: Bool[Array, " S"]  # tracked, kept by the study, above the elevation mask
     geo_pred: Float[Array, " S"]  # range + receiver clock and ISB - satellite clock + troposphere
     H_common: Float[Array, "S n"]  # geometry, clock, ISB and ZWD columns
-    code_sigma: Float[Array, " S"]  # raw code sigma at the slot's elevation (GLONASS scaled) [m]
-    phase_sigma: Float[Array, " S"]  # raw phase sigma [m]
+    # raw code / phase sigma at the slot's elevation, white + multipath (PppConfig.zenith_sigmas,
+    # GLONASS scaled) [m]
+    code_sigma: Float[Array, " S"]
+    phase_sigma: Float[Array, " S"]
     if_noise: Float[Array, " S"]  # sqrt(alpha^2 + beta^2): IF noise amplification
     iono_var: Float[Array, " S"]  # variance of the model slant L1 ionosphere [m^2]
     product_var: Float[ArrayLike, ""]  # orbit + clock residual variance, common to code and phase
@@ -150,7 +156,7 @@ class AbstractPppMode(eqx.Module):
         return cmb.code_if_m
 
     def process_noise(self, cfg: PppConfig, layout: StateLayout, elevation: Float[Array, " S"],
-                      q: Float[Array, " n"]) -> Float[Array, " n"]:
+                      q: Float[Array, " n"], obs: GnssObs) -> Float[Array, " n"]:
         """Diagonal PSD q with the mode's blocks filled in (default: constants, q unchanged)."""
         return q
 

@@ -81,14 +81,14 @@ class IcPpp(AbstractPppMode):
     uses_iono_model: ClassVar[bool] = True
     supports_bssd: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = (
-        Block("amb1", True, "ambiguity_init_sigma_m"),
-        Block("amb2", True, "ambiguity_init_sigma_m"),
+        Block("amb1", True, "ambiguity_init_sigma_m", ambiguity=True),
+        Block("amb2", True, "ambiguity_init_sigma_m", ambiguity=True),
         Block("iono", True, "iono_init_sigma_m"),
         Block("dcb", False, "dcb_init_sigma_m"),
     )
 
     def process_noise(self, cfg, layout, elevation: Float[Array, " S"],
-                      q: Float[Array, " n"]) -> Float[Array, " n"]:
+                      q: Float[Array, " n"], obs) -> Float[Array, " n"]:
         """Slant ionosphere and DCB: random walks (S001 eqs 4-5, 8-9)."""
         q = slant_iono_process_noise(cfg, layout, elevation, q)
         return q.at[layout.i("dcb")].set((cfg.dcb_sigma_m_sqrt_h / _SQRT_H) ** 2)
@@ -128,7 +128,7 @@ class IcPpp(AbstractPppMode):
             amb = ctx.gnss_est[layout.sl(amb_name)]
             pred = ctx.geo_pred - coef * iono + amb
             H = ctx.H_common - H_iono * coef[:, None] + per_slot_columns(layout, amb_name, ones)
-            var = ctx.phase_sigma**2 + ctx.product_var
+            var = ctx.phase_sigma**2  # the products' residual: the ambiguities' random walk
             out.append(RowBlock(pred - ctx.obs.phase_m[:, band], H, var, ctx.usable, KIND_PHASE))
         return out
 

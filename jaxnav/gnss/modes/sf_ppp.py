@@ -42,7 +42,7 @@ class SfPpp(AbstractPppMode):
     # Between-satellite differences of per-slot ionosphere rows are not implemented (as ic_ppp).
     supports_bssd: ClassVar[bool] = False
     blocks: ClassVar[tuple[Block, ...]] = (
-        Block("amb1", True, "ambiguity_init_sigma_m"),
+        Block("amb1", True, "ambiguity_init_sigma_m", ambiguity=True),
         Block("iono", True, "iono_init_sigma_m"),
     )
 
@@ -50,8 +50,8 @@ class SfPpp(AbstractPppMode):
         return cmb.code_corr_m[:, 0]
 
     def process_noise(self, cfg, layout, elevation: Float[Array, " S"],
-                      q: Float[Array, " n"]) -> Float[Array, " n"]:
-        """Slant ionosphere: a random walk (S001 eqs 4-5); the ambiguities are constants."""
+                      q: Float[Array, " n"], obs) -> Float[Array, " n"]:
+        """Slant ionosphere: a random walk (S001 eqs 4-5)."""
         return slant_iono_process_noise(cfg, layout, elevation, q)
 
     def reset_variance(self, cfg, obs, elevation):
@@ -74,7 +74,7 @@ class SfPpp(AbstractPppMode):
         code = RowBlock(ctx.geo_pred + iono - ctx.cmb.code_corr_m[:, 0], ctx.H_common + H_iono,
                         ctx.code_sigma**2 + ctx.product_var, ctx.usable, KIND_CODE)
         phase = RowBlock(ctx.geo_pred - iono + amb - ctx.obs.phase_m[:, 0],
-                         ctx.H_common - H_iono + H_amb, ctx.phase_sigma**2 + ctx.product_var,
+                         ctx.H_common - H_iono + H_amb, ctx.phase_sigma**2,
                          ctx.usable, KIND_PHASE)
         return [code, phase]
 
