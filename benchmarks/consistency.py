@@ -28,6 +28,7 @@ The last line printed is JSON ``{"<mode>/<system>": {"anees_pos": .., "anees_vel
 
     python benchmarks/consistency.py            # 200 runs x 900 s, every cell (hours)
     python benchmarks/consistency.py --quick    # 16 runs x 420 s, a few cells (minutes)
+    python benchmarks/consistency.py --environment urban --cells float_ppp/riss,df_code/riss
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchutil  # noqa: E402
 
 import jaxnav  # noqa: E402, F401  (float64)
+from jaxnav.sim.observations import SLIP_ENVIRONMENTS  # noqa: E402
 from jaxnav.study import metrics as mt  # noqa: E402
 from jaxnav.study.factory import LC_SYSTEMS, SimFactory  # noqa: E402
 
@@ -106,21 +108,31 @@ def main(argv=None) -> int:
     p.add_argument("--duration", type=float, help="drive length [s] (default 900, quick 420)")
     p.add_argument("--settle", type=float, default=300.0,
                    help="seconds left out at the start (default 300)")
+    p.add_argument("--environment", default="open_sky", choices=list(SLIP_ENVIRONMENTS),
+                   help="cycle-slip / loss-of-lock rates of the simulated receiver (default "
+                        "open_sky); the filters get LLI + the GF / MW detector's flags")
+    p.add_argument("--cells", help="comma-separated mode/system cells instead of the default set")
     p.add_argument("--results", type=Path, default=benchutil.RESULTS_MD)
     a = p.parse_args(argv)
     n_runs = a.runs or (16 if a.quick else 200)
     duration = a.duration or (420.0 if a.quick else 900.0)
     if duration <= a.settle:
         p.error(f"--duration {duration} must exceed --settle {a.settle}")
-    if a.quick:
+    if a.cells:
+        cells = tuple(tuple(c.split("/", 1)) for c in a.cells.split(","))
+        bad = [c for c in cells if len(c) != 2]
+        if bad:
+            p.error(f"--cells {a.cells!r}: each cell is mode/system, e.g. float_ppp/riss")
+    elif a.quick:
         cells = QUICK_CELLS
     else:
         cells = tuple((m, s) for m in FULL_MODES for s in FULL_SYSTEMS) + (
             ("float_ppp", "lc_ins15"),)
-    factory = SimFactory({"duration_s": duration})
+    factory = SimFactory({"duration_s": duration, "environment": a.environment})
     figures, lines = {}, []
     lines.append(f"{n_runs} runs x {duration:.0f} s per cell (default drive, every simulated "
-                 f"error source on), epochs after {a.settle:.0f} s; bands two-sided 95 %.")
+                 f"error source on, slip environment {a.environment}, detected slips), epochs "
+                 f"after {a.settle:.0f} s; bands two-sided 95 %.")
     lines.append("")
     lines.append("| mode / system | ANEES pos | ANEES vel | band (3 dof) | median NEES pos | ANIS "
                  "| NIS band | s |")

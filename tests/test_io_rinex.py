@@ -378,3 +378,15 @@ def test_esbc_navigation_file():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             read_rinex_nav(OBS)
+
+
+def test_rinex_requests_ask_each_code_once_and_both_l1_codes_for_p1c1():
+    """``p1c1_from_observations`` needs the P code and C/A on L1; no code is asked twice."""
+    from jaxnav.io.prepare import rinex_requests
+
+    for freq in ("single", "dual"):
+        req = rinex_requests(freq, ("G", "R", "E"), p1_codes=True)
+        for letter, codes in req.items():
+            assert len(codes) == len(set(codes)), (freq, letter, codes)
+        assert {"C1W", "C1C"} <= set(req["G"]) and {"C1P", "C1C"} <= set(req["R"])
+    assert rinex_requests("dual", ("G",)) == {"G": ("C1W", "C2W", "L1C", "L2W", "D1C")}

@@ -6,19 +6,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 
 import jaxnav  # noqa: F401  (enables float64)
 from jaxnav import geodesy
 from jaxnav.core import gpstime
 from jaxnav.geodesy import C_LIGHT
-from jaxnav.gnss import corrections, signals
+from jaxnav.gnss import corrections, signals, slips
 from jaxnav.sim import constellation as C
 from jaxnav.sim import observations as O
 
 N_EP = 1500  # 25 min at 1 Hz
 KEYS = jax.random.split(jax.random.PRNGKey(2024), 2)
 
-QUIET = O.ObsParams(
+# The clean world of these unit tests: the default error sources without slips or losses of
+# lock (the default "open_sky" rates would break the exact-mask and continuity checks).
+BASE = O.slip_environment(O.DEFAULT_PARAMS, "none")
+QUIET = BASE._replace(
     code_sigma0_m=(0.0, 0.0, 0.0),
     phase_sigma0_m=0.0,
     doppler_sigma0_m_s=0.0,
@@ -47,7 +51,7 @@ def scenario():
     return t, pos, vel, orbits, slots
 
 
-def _sim_batch(scenario, params=O.DEFAULT_PARAMS, keys=KEYS):
+def _sim_batch(scenario, params=BASE, keys=KEYS):
     """Two realisations (vmap over keys): every test shares this one compiled simulation."""
     t, pos, vel, orbits, slots = scenario
     return jax.vmap(
@@ -55,7 +59,7 @@ def _sim_batch(scenario, params=O.DEFAULT_PARAMS, keys=KEYS):
     )(keys)
 
 
-def _sim(scenario, params=O.DEFAULT_PARAMS):
+def _sim(scenario, params=BASE):
     return jax.tree.map(lambda x: x[0], _sim_batch(scenario, params))
 
 
@@ -77,7 +81,7 @@ def test_shapes_masks_and_counts(scenario, base):
     valid = np.asarray(base.valid)
     el = np.asarray(base.elevation_rad)
     occ = np.asarray(slots.occupied)
-    np.testing.assert_array_equal(valid, (el >= O.DEFAULT_PARAMS.elevation_mask_rad) & occ)
+    np.testing.assert_array_equal(valid, (el >= BASE.elevation_mask_rad) & occ)
     assert not valid[:, ~occ].any()
     per_epoch = valid.sum(axis=1)
     assert per_epoch.min() >= 12 and per_epoch.max() <= 32  # three 24-satellite constellations
@@ -90,7 +94,7 @@ def test_shapes_masks_and_counts(scenario, base):
 
 def test_ionosphere_free_code_removes_ionosphere(scenario, base):
     """IF(P1, P2) is identical with and without the simulated ionosphere (same key)."""
-    no_iono = _sim(scenario, O.DEFAULT_PARAMS._replace(iono_scale=0.0))
+    no_iono = _sim(scenario, BASE._replace(iono_scale=0.0))
     f1, f2 = _band_freqs(base)
     valid = np.asarray(base.valid)
     p_on, p_off = np.asarray(base.code_m), np.asarray(no_iono.code_m)
@@ -128,7 +132,7 @@ def test_geometry_free_phase_is_ionosphere_plus_ambiguity(scenario):
 
 def test_white_noise_levels_match_configured_sigmas(scenario, base):
     """C1 - P1 (same band: multipath, geometry, iono cancel) has var sigma_C1^2 + sigma_P1^2."""
-    p = O.DEFAULT_PARAMS
+    p = BASE
     valid = np.asarray(base.valid)
     fac = np.asarray(O.elevation_sigma_factor(base.elevation_rad))
     d = (np.asarray(base.code_m)[..., 0] - np.asarray(base.code_m)[..., 1]) / fac
@@ -153,7 +157,7 @@ def test_phase_and_doppler_noise_levels(scenario):
     Phase multipath and the receiver clock are switched off here: the clock's white-FM part
     moves the phase (bias) but not the Doppler (drift state), as in the two-state clock model.
     """
-    p = O.DEFAULT_PARAMS._replace(multipath_phase_sigma0_m=0.0, clock_h0=0.0, clock_h_m2=0.0)
+    p = BASE._replace(multipath_phase_sigma0_m=0.0, clock_h0=0.0, clock_h_m2=0.0)
     obs = _sim(scenario, p)
     lam = np.asarray(obs.wavelength_m)
     phi = np.asarray(obs.phase_cyc) * lam
@@ -189,7 +193,7 @@ def test_doppler_is_time_derivative_of_carrier_range(scenario):
 
 
 def test_receiver_clock_psds_and_allan_variance():
-    p = O.DEFAULT_PARAMS
+    p = BASE
     s_f, s_g = O.clock_psd(p)
     assert s_f == pytest.approx(0.03595, rel=1e-3)  # SEED_SPEC 1.6 derived values
     assert s_g == pytest.approx(0.14193, rel=1e-3)
@@ -252,7 +256,7 @@ def test_second_order_gauss_markov_statistics():
 
 
 def test_multipath_is_elevation_scaled_gauss_markov(base):
-    p = O.DEFAULT_PARAMS
+    p = BASE
     valid = np.asarray(base.valid)
     fac = np.asarray(O.elevation_sigma_factor(base.elevation_rad))
     mp = np.asarray(base.truth.multipath_code_m)
@@ -277,7 +281,7 @@ def test_products_reconstruct_the_true_geometry(scenario, base):
     resid = np.asarray(rho_p) - rho_t + np.einsum("tsi,tsi->ts", u, err)
     assert np.abs(resid[valid]).max() < 1e-4
     d = (np.asarray(rho_p) - rho_t)[valid]
-    assert d.std() == pytest.approx(O.DEFAULT_PARAMS.orbit_sigma_m, rel=0.5)
+    assert d.std() == pytest.approx(BASE.orbit_sigma_m, rel=0.5)
 
 
 def test_ionosphere_free_code_closes_with_the_filter_models(scenario):
@@ -324,7 +328,7 @@ def test_single_frequency_user_sees_the_klobuchar_residual(base):
 def test_gim_grade_model_error_is_the_set_fraction_of_the_klobuchar_residual(scenario, base):
     """gim_error_fraction f: I_GIM - I = f (I_Klob - I) in the same realisation (the truth and
     the noise are untouched)."""
-    gim = _sim(scenario, O.DEFAULT_PARAMS._replace(gim_error_fraction=0.25))
+    gim = _sim(scenario, BASE._replace(gim_error_fraction=0.25))
     valid = np.asarray(base.valid)
     truth = np.asarray(base.truth.iono_l1_m)[valid]
     np.testing.assert_allclose(np.asarray(gim.truth.iono_l1_m)[valid], truth)
@@ -335,7 +339,7 @@ def test_gim_grade_model_error_is_the_set_fraction_of_the_klobuchar_residual(sce
 
 
 def test_cycle_slips_and_loss_of_lock(scenario):
-    p = O.DEFAULT_PARAMS._replace(slip_prob=0.01, loss_of_lock_prob=0.002, loss_of_lock_epochs=5)
+    p = BASE._replace(slip_prob=0.01, loss_of_lock_prob=0.002, loss_of_lock_epochs=5)
     obs = _sim(scenario, p)
     _, _, _, _, slots = scenario
     valid = np.asarray(obs.valid)
@@ -365,6 +369,81 @@ def test_cycle_slips_and_loss_of_lock(scenario):
     assert n_loss > 10
     # the phase itself carries the integer jump (geometry-free phase jumps by lambda1 j1 - ...)
     assert np.all(slip[0][valid[0]])
+    # truth of continuing arcs vs the receiver's flag: with slip_lli_prob = 0 the receiver flags
+    # the relocks only, every one of them
+    cycle = np.asarray(obs.cycle_slip)
+    lli = np.asarray(obs.lli)
+    np.testing.assert_array_equal(cycle[1:], slip[1:] & cont)
+    assert not np.any(lli & cycle)
+    relock = slip[1:] & ~cont & valid[1:] & geom[:-1]  # a new arc of a satellite already up
+    assert np.all(lli[1:][relock]) and relock.sum() >= n_loss
+
+
+def test_slip_environment_rates_and_receiver_flags(scenario):
+    """Poisson rates per satellite-hour become per-epoch probabilities; LLI marks a fraction."""
+    urban = O.slip_environment(BASE, "urban", epoch_interval_s=1.0)
+    env = O.SLIP_ENVIRONMENTS["urban"]
+    assert urban.slip_prob == pytest.approx(1.0 - math.exp(-env.slips_per_sat_hour / 3600.0))
+    assert urban.loss_of_lock_epochs == round(env.loss_duration_s)
+    assert O.slip_environment(BASE, "urban", 30.0).loss_of_lock_epochs == 1
+    assert O.DEFAULT_PARAMS.slip_prob == O.slip_environment(BASE, "open_sky").slip_prob
+    with pytest.raises(ValueError, match="unknown slip environment"):
+        O.slip_environment(BASE, "forest")
+    p = BASE._replace(slip_prob=0.01, slip_lli_prob=0.5)
+    obs = _sim(scenario, p)
+    cycle = np.asarray(obs.cycle_slip)
+    flagged = np.asarray(obs.lli) & cycle
+    n = cycle.sum()
+    # binomial(n, 1/2): the flagged share within 4 sigma
+    assert abs(flagged.sum() - 0.5 * n) < 4.0 * math.sqrt(0.25 * n), (flagged.sum(), n)
+
+
+def test_dual_frequency_detector_on_simulated_slips(scenario):
+    """The real-data GF / MW detector (gnss/slips.py) on simulated slips and on clean arcs.
+
+    Every slip whose geometry-free jump |lambda1 dN1 - lambda2 dN2| exceeds the 5 cm threshold
+    by 5 sigma of the epoch difference of GF noise must be found; on slip-free arcs the GF test
+    fires no more often than the Gaussian tail 2 Phi(-5 cm / sigma_dGF) of the simulated noise
+    predicts (Poisson 99.9 % bound), with sigma_dGF^2 = 4 sigma_w(E)^2 + 4 sigma_mp(E)^2
+    (1 - exp(-dt / tau)) (two bands, two epochs; white plus first-order GM multipath).
+    """
+    _, _, _, _, slots = scenario
+    thr = slips.DEFAULT_SLIP_THRESHOLDS
+    for name in ("urban", "none"):
+        p = O.slip_environment(BASE, name)
+        obs = _sim(scenario, p)
+        valid = np.asarray(obs.valid)
+        gf, mw = slips.detect_slips_dual(
+            obs.phase_cyc * obs.wavelength_m,
+            obs.code_m[..., 1:],
+            obs.valid,
+            obs.elevation_rad,
+            obs.freq_hz[:, 0],
+            obs.freq_hz[:, 1],
+        )
+        gf, mw = np.asarray(gf), np.asarray(mw)
+        cont = np.zeros_like(valid)
+        cont[1:] = valid[1:] & valid[:-1]
+        fac = np.asarray(O.elevation_sigma_factor(obs.elevation_rad))
+        rho = math.exp(-1.0 / p.multipath_tau_s)
+        sig = fac * np.sqrt(
+            4 * p.phase_sigma0_m**2 + 4 * p.multipath_phase_sigma0_m**2 * (1.0 - rho)
+        )
+        cycle = np.asarray(obs.cycle_slip)
+        if name == "urban":
+            amb = np.asarray(obs.truth.ambiguity_cyc)
+            lam = np.asarray(obs.wavelength_m)
+            d = np.zeros_like(amb)
+            d[1:] = amb[1:] - amb[:-1]
+            jump_gf = np.abs(d[..., 0] * lam[:, 0] - d[..., 1] * lam[:, 1])
+            big = cycle & (jump_gf > thr.gf_m + 5.0 * sig)
+            assert big.sum() > 100, big.sum()
+            assert np.all(gf[big]), np.flatnonzero(big & ~gf)
+        else:
+            assert not cycle.any()
+            expected = (2.0 * scipy.stats.norm.sf(thr.gf_m / sig))[cont].sum()
+            bound = scipy.stats.poisson.ppf(0.999, max(expected, 1e-3))
+            assert gf[cont].sum() <= bound, (gf[cont].sum(), expected)
 
 
 def test_vmap_over_keys_gives_independent_realisations(scenario, base):
@@ -382,3 +461,25 @@ def test_vmap_over_keys_gives_independent_realisations(scenario, base):
         lambda k: O.simulate_observations(k, t, pos, vel, orbits, slots, with_truth=False), KEYS[0]
     )
     assert shapes.truth is None and shapes.code_m.shape == (N_EP, slots.n_slots, 3)
+
+
+def test_filter_slip_flags_are_the_receivers_and_the_detectors(scenario):
+    """What a simulated filter is told: LLI (+ GF / MW for dual frequency), not the truth."""
+    from jaxnav.sim import scenario as S
+
+    assert S.ScenarioConfig().slip_flags == "detector"
+    obs = _sim(scenario, O.slip_environment(BASE, "urban"))
+    cycle = np.asarray(obs.cycle_slip)
+    assert cycle.sum() > 100
+    sf = np.asarray(S.slip_flags(obs, signals.CODE_C1))
+    np.testing.assert_array_equal(sf, np.asarray(obs.lli))
+    assert not np.any(sf & cycle)  # no LLI on these slips: a single-frequency user misses them
+    df = np.asarray(S.slip_flags(obs, signals.CODE_P1))
+    gf, mw = slips.detect_slips_dual(
+        obs.phase_cyc * obs.wavelength_m, obs.code_m[..., 1:], obs.valid, obs.elevation_rad,
+        obs.freq_hz[:, 0], obs.freq_hz[:, 1],
+    )
+    np.testing.assert_array_equal(df, np.asarray(obs.lli | gf | mw))
+    np.testing.assert_array_equal(np.asarray(S.slip_flags(obs, 1, "oracle")), obs.slip)
+    with pytest.raises(ValueError, match="unknown slip_flags"):
+        S.slip_flags(obs, 1, "psychic")

@@ -219,3 +219,28 @@ def test_missing_doppler_or_model_ionosphere_gives_no_row_never_a_zero(mode):
         want[:, 3] = False  # the slot without a model ionosphere: none of its rows
     want[dop, 2] = False  # the slot without Doppler: no Doppler row, its other rows kept
     np.testing.assert_array_equal(m_got, want)
+
+
+def test_bssd_doppler_rows_survive_a_reference_without_doppler():
+    """BSSD: where the code / phase reference (highest GPS satellite) has no Doppler, the
+    Doppler rows are differenced against the highest GPS satellite that has one, so every
+    other satellite with a Doppler keeps its row (S - 2 here)."""
+    obs, slots = _sky()
+    _, system, nav, mean = _systems()[1]
+    cfg = ppp.PppConfig(mode="df_code", n_slots=S, systems=(signals.SYS_GPS, signals.SYS_GAL),
+                        elevation_mask_rad=0.0, bssd=True)
+    tf = tight.TightFilter(system, cfg, slots, 0.01, 1.0)
+    rx = system.antenna(nav, mean, system.zero_sensors(), tf.layout)
+    keep, hatch = jnp.ones(S, bool), ppp.HatchState.empty(S)
+    args = (tf.layout, slots)
+    rows, el = ppp.measurement_rows(cfg, *args, obs, rx, jnp.zeros(tf.layout.size), keep, hatch,
+                                    180.0, 1.0)
+    ref = int(ppp.reference_slot(slots, el, keep))
+    no_ref_doppler = obs._replace(doppler_ok=obs.doppler_ok.at[ref].set(False))
+    rows, _ = ppp.measurement_rows(cfg, *args, no_ref_doppler, rx, jnp.zeros(tf.layout.size),
+                                   keep, hatch, 180.0, 1.0)
+    dop = np.asarray(rows.kind == ppp.KIND_DOPPLER) & np.asarray(rows.mask)
+    assert dop.sum() == S - 2
+    ref_dop = int(ppp.reference_slot(slots, el, no_ref_doppler.doppler_ok))
+    assert ref_dop != ref
+    assert not dop[np.isin(np.asarray(rows.slot), [ref, ref_dop])].any()

@@ -405,9 +405,15 @@ def measurement_rows(
 
     if cfg.bssd:
         ref = reference_slot(slots, el, usable)
+        # Doppler rows are uncorrelated with code and phase and lose the clock drift against any
+        # reference: their own one where the main reference has no Doppler (else none is used).
+        ref_doppler = jnp.where(
+            obs.doppler_ok[ref], ref, reference_slot(slots, el, usable & obs.doppler_ok)
+        )
         diffed = []
         for dz, H, var, mask, kind in blocks:
-            dz, H, R, mask = _difference(dz, H, var, mask, ref)
+            r = ref_doppler if kind == KIND_DOPPLER else ref
+            dz, H, R, mask = _difference(dz, H, var, mask, r)
             diffed.append((dz, H, R, mask, kind))
     else:
         diffed = [(dz, H, jnp.diag(var), mask, kind) for dz, H, var, mask, kind in blocks]

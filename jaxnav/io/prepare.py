@@ -65,7 +65,7 @@ from jaxnav.geodesy import C_LIGHT
 from jaxnav.gnss import ephemeris, models, satellites, series, signals
 from jaxnav.gnss.interp import clock_table, orbit_table
 from jaxnav.gnss.ppp_data import EpochInput, GnssObs, SlotInfo
-from jaxnav.gnss.slips import detect_slips
+from jaxnav.gnss.slips import DEFAULT_SLIP_THRESHOLDS, SlipThresholds, detect_slips_dual
 from jaxnav.gnss.spp import fill_positions, spp
 from jaxnav.io.products import ClockTable, IonexMaps, Sp3Orbit
 from jaxnav.io.rinex import RinexObs
@@ -101,8 +101,11 @@ def rinex_requests(freq: str, systems, *, p1_codes: bool = False) -> dict[str, t
     ``p1_codes`` also the P-code beside C/A, for ``p1c1_from_observations``)."""
     table = DUAL_SIGNALS if freq == "dual" else SINGLE_SIGNALS
     out = {s: tuple(c for c in table[s] if c is not None) for s in systems}
-    if p1_codes:
-        out = {s: v + ((P1_CODES[s],) if s in P1_CODES else ()) for s, v in out.items()}
+    if p1_codes:  # the P code and C/A on L1, each once (dual frequency already has the P code)
+        out = {
+            s: v + tuple(c for c in (P1_CODES[s], "C1C") if c not in v) if s in P1_CODES else v
+            for s, v in out.items()
+        }
     return out
 
 
@@ -146,9 +149,9 @@ class PrepareOptions:
     apply_windup: bool = True
     apply_tides: bool = True
     antenna_delta_hen_m: tuple[float, float, float] | None = None  # None: from the RINEX header
-    gf_slip_m: float = 0.05  # chosen: RTKLIB's default geometry-free slip threshold (5 cm)
-    mw_slip_sigmas: float = 4.0  # chosen: 4-sigma Melbourne-Wuebbena jump
-    mw_floor_cycles: float = 0.25  # chosen: floor 0.25 WL cycles: 4 sigma >= 1 cycle (86 cm)
+    gf_slip_m: float = DEFAULT_SLIP_THRESHOLDS.gf_m  # gnss.slips.SlipThresholds (sources there)
+    mw_slip_sigmas: float = DEFAULT_SLIP_THRESHOLDS.mw_sigmas
+    mw_floor_cycles: float = DEFAULT_SLIP_THRESHOLDS.mw_floor_cycles
     sp3_points: int = 10  # io.products default (mm agreement with 12 points)
     sp3_one_sided: bool = False  # allow one-sided SP3 windows at the ends of the orbit table
     clock_max_gap_s: float | None = None  # None: io.products default (2 x interval)
@@ -545,28 +548,15 @@ def prepare_gnss(
     have_phase = np.isfinite(phase_m[..., 0]) & (np.isfinite(phase_m[..., 1]) | (not dual))
     lli_slip = (arr.lli & 1) > 0
     if dual:
-        gf = phase_m[..., 0] - phase_m[..., 1]
-        mw = np.asarray(
-            signals.melbourne_wubbena_m(
-                phase_m[..., 0], phase_m[..., 1], code_m[..., 0], code_m[..., 1], f1, f2
-            )
-        )
         have_mw = have_phase & np.isfinite(code[..., 0]) & np.isfinite(code[..., 1])
-        # MW noise floor: mw_floor_cycles wide-lane cycles at zenith, growing below 30 deg
-        # like the code noise it comes from (S001 eq 11 elevation law).
-        lam_wl = np.asarray(signals.wl_wavelength_m(f1, f2))
-        floor = (
-            opt.mw_floor_cycles
-            * lam_wl[None, :]
-            * np.asarray(models.elevation_sigma(1.0, jnp.asarray(el)))
-        )
-        gf_slip, mw_slip = detect_slips(
-            jnp.asarray(np.nan_to_num(gf)),
-            jnp.asarray(np.nan_to_num(mw)),
+        gf_slip, mw_slip = detect_slips_dual(
+            jnp.asarray(phase_m),
+            jnp.asarray(code_m),
             jnp.asarray(have_mw),
-            jnp.asarray(floor),
-            opt.gf_slip_m,
-            opt.mw_slip_sigmas,
+            jnp.asarray(el),
+            jnp.asarray(f1),
+            jnp.asarray(f2),
+            SlipThresholds(opt.gf_slip_m, opt.mw_slip_sigmas, opt.mw_floor_cycles),
         )
         gf_slip, mw_slip = np.asarray(gf_slip), np.asarray(mw_slip)
     else:

@@ -36,7 +36,12 @@ Observation equations (S002 eq 2.25-2.26, in metres; slot s, band b, code type c
   B^s_C1 = B^s_P1 - DCB_P1C1 (products returned exactly). Receiver biases per system follow the
   same convention plus the inter-system bias ISB (GPS ISB = 0: the clock absorbs GPS biases).
 - d^r_b - d^s_b: fractional phase biases (absorbed by float ambiguities); N_b integer ambiguities
-  drawn anew at every arc start (first epoch, rise, relock, cycle slip).
+  drawn anew at every arc start (first epoch, rise, relock) and changed by an integer jump at a
+  cycle slip. Slips and losses of lock are Bernoulli events per tracked slot and epoch
+  (``slip_prob``, ``loss_of_lock_prob``; :func:`slip_environment` sets them from rates per
+  satellite-hour of an environment). The receiver's loss-of-lock indicator ``lli`` is set at
+  every relock and at a fraction ``slip_lli_prob`` of the slips; the rest must be found by the
+  GF / MW detector (gnss/slips.py), as on real data (sim/scenario.py runs it).
 - m_b, mu_b: elevation-dependent multipath (first-order GM, shared by the codes of one band);
   e, eps: white noise with sigma(E) = sigma0 for E >= 30 deg, sigma0 / (2 sin E) below
   (S001 eq 11 [recon]); Doppler noise likewise.
@@ -90,6 +95,33 @@ _NORMAL_WIDTHS = {
 _NORMAL_BLOCKS = tuple(_NORMAL_WIDTHS)
 _NORMAL_SPLITS = tuple(np.cumsum(list(_NORMAL_WIDTHS.values()))[:-1].tolist())
 _N_NORMAL_COLS = int(sum(_NORMAL_WIDTHS.values()))
+
+
+class SlipEnvironment(NamedTuple):
+    """Rates of carrier-phase cycle slips and losses of lock per tracked satellite-hour."""
+
+    slips_per_sat_hour: float
+    losses_per_sat_hour: float
+    loss_duration_s: float
+
+
+#: Chosen rates per environment (docs/simulation.md, "Cycle slips"). Open sky is anchored on
+#: ESBC's 24 h (20 GF / MW flags, no LLI, in 145 used GPS satellite-hours of a geodetic
+#: receiver at 30 s: 0.14 per satellite-hour, false alarms included); the
+#: vehicle environments are chosen from the usual picture of a car under trees (suburban: a slip
+#: per satellite every ~10 min, a blockage every ~5 min) and street canyons (urban: a slip every
+#: ~2 min, a blockage every minute, lasting 10 s); no source document gives rates.
+SLIP_ENVIRONMENTS = {
+    "none": SlipEnvironment(0.0, 0.0, 5.0),
+    "open_sky": SlipEnvironment(0.14, 0.14, 5.0),
+    "suburban": SlipEnvironment(6.0, 12.0, 5.0),
+    "urban": SlipEnvironment(30.0, 60.0, 10.0),
+}
+
+
+def _per_epoch(rate_per_hour: float, dt_s: float) -> float:
+    """Probability 1 - exp(-r dt / 3600) of at least one Poisson event in an epoch of dt s."""
+    return -math.expm1(-rate_per_hour * dt_s / 3600.0)
 
 
 class ObsParams(NamedTuple):
@@ -150,10 +182,30 @@ class ObsParams(NamedTuple):
     isb_m: tuple = (0.0, 8.0, 3.0)  # GPS, GLONASS, Galileo receiver ISB; chosen (tens of ns)
     # Ambiguities, cycle slips, loss of lock.
     ambiguity_max_cyc: int = 100000  # chosen: |N| bound of the initial integer ambiguities
-    slip_prob: float = 0.0  # probability per tracked slot and epoch of a cycle slip (0 = off)
+    # Default: "open_sky" at 1 Hz (SLIP_ENVIRONMENTS; slip_environment for others / other rates).
+    slip_prob: float = _per_epoch(SLIP_ENVIRONMENTS["open_sky"].slips_per_sat_hour, 1.0)
     slip_max_cyc: int = 3  # slip size uniform in [-max, max] per band (at least one nonzero)
-    loss_of_lock_prob: float = 0.0  # probability per tracked slot and epoch (0 = off)
+    loss_of_lock_prob: float = _per_epoch(SLIP_ENVIRONMENTS["open_sky"].losses_per_sat_hour, 1.0)
     loss_of_lock_epochs: int = 5  # epochs without lock after a loss (then a new arc)
+    slip_lli_prob: float = 0.0  # chosen: fraction of slips the receiver flags itself (LLI); 0
+    # makes the detector find every slip (ESBC's PolaRx5 set no LLI in 24 h, docs/simulation.md)
+
+
+def slip_environment(params: ObsParams, name: str, epoch_interval_s: float = 1.0) -> ObsParams:
+    """``params`` with the slip and loss-of-lock probabilities of environment ``name``.
+
+    Poisson events at rate r per satellite-hour: p = 1 - exp(-r dt / 3600) per epoch of dt s;
+    a loss of lock lasts ``loss_duration_s`` rounded to whole epochs (at least one).
+    """
+    if name not in SLIP_ENVIRONMENTS:
+        raise ValueError(f"unknown slip environment {name!r}; use {', '.join(SLIP_ENVIRONMENTS)}")
+    env = SLIP_ENVIRONMENTS[name]
+    dt = float(epoch_interval_s)
+    return params._replace(
+        slip_prob=_per_epoch(env.slips_per_sat_hour, dt),
+        loss_of_lock_prob=_per_epoch(env.losses_per_sat_hour, dt),
+        loss_of_lock_epochs=max(1, round(env.loss_duration_s / dt)),
+    )
 
 
 DEFAULT_PARAMS = ObsParams()
@@ -230,6 +282,8 @@ class EpochObs(NamedTuple):
     doppler_hz: jnp.ndarray  # [n, 2]
     valid: jnp.ndarray  # [n] bool
     slip: jnp.ndarray  # [n] bool
+    cycle_slip: jnp.ndarray  # [n] bool
+    lli: jnp.ndarray  # [n] bool
     elevation_rad: jnp.ndarray  # [n]
     azimuth_rad: jnp.ndarray  # [n]
     sat_pos_ecef: jnp.ndarray  # [n, 3]
@@ -249,8 +303,9 @@ class Observations(NamedTuple):
     - ``phase_cyc`` [n_ep, n, 2]: carrier phase of bands 0, 1 in cycles (S002 sign: +lambda N).
     - ``doppler_hz`` [n_ep, n, 2]: Doppler with D[m/s] = -lambda D_Hz (SEED_SPEC 2.6).
     - ``valid`` [n_ep, n]: slot occupied, record usable, elevation >= mask and in lock.
-    - ``slip`` [n_ep, n]: a new ambiguity arc starts here (first epoch, rise, relock, or slip):
-      reset the slot's ambiguity (and any carrier smoothing).
+    - ``slip`` [n_ep, n]: truth, a new ambiguity arc starts here (first epoch, rise, relock, or
+      slip); ``cycle_slip``: truth, the slips of continuing arcs only (what a detector must
+      find); ``lli``: the receiver's loss-of-lock indicator (relocks and the flagged slips).
     - ``sat_pos_ecef`` / ``sat_vel_ecef`` [n_ep, n, 3]: precise-product satellite state at the
       true transmission time, in the ECEF frame of that instant (apply the Earth rotation during
       travel, e.g. corrections.geometric_range_m); ``sat_clock_m`` = c dt^s of the product
@@ -268,6 +323,8 @@ class Observations(NamedTuple):
     doppler_hz: jnp.ndarray
     valid: jnp.ndarray
     slip: jnp.ndarray
+    cycle_slip: jnp.ndarray
+    lli: jnp.ndarray
     elevation_rad: jnp.ndarray
     azimuth_rad: jnp.ndarray
     sat_pos_ecef: jnp.ndarray
@@ -619,6 +676,10 @@ def step(
         jnp.where(slip_event[:, None], state.ambiguity_cyc + jump, state.ambiguity_cyc),
     )
     slip = new_arc | slip_event
+    # u[:, 1] < slip_prob draws the slip; its lowest fraction slip_lli_prob is the flagged part
+    # (one uniform for both keeps every other draw of a realisation unchanged).
+    relock = new_arc & (state.lock_wait > 0)  # after a loss of lock (not at a satellite's rise)
+    lli = relock | (slip_event & (u[:, 1] < params.slip_prob * params.slip_lli_prob))
 
     # --- observables
     lam = c.wavelength_m
@@ -658,6 +719,8 @@ def step(
         doppler_hz=-range_rate / lam,
         valid=valid,
         slip=slip,
+        cycle_slip=slip_event,
+        lli=lli,
         elevation_rad=sm.el,
         azimuth_rad=sm.az,
         sat_pos_ecef=sm.pos_tx - orbit_err,
@@ -747,6 +810,8 @@ def _simulate(key, t_s, pos, vel, orbits, slots, params, orbit_dt, sow0, doy0, w
         doppler_hz=ep.doppler_hz,
         valid=ep.valid,
         slip=ep.slip,
+        cycle_slip=ep.cycle_slip,
+        lli=ep.lli,
         elevation_rad=ep.elevation_rad,
         azimuth_rad=ep.azimuth_rad,
         sat_pos_ecef=ep.sat_pos_ecef,

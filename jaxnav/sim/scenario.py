@@ -20,7 +20,7 @@ import numpy as np
 
 from jaxnav import attitude, geodesy
 from jaxnav.core import gpstime
-from jaxnav.gnss import corrections, models, ppp, signals
+from jaxnav.gnss import corrections, models, ppp, signals, slips
 from jaxnav.gnss.ppp_data import EpochInput
 from jaxnav.ins import riss, strapdown
 from jaxnav.sim import constellation, drives, observations, sensors, trajectory
@@ -44,6 +44,10 @@ class ScenarioConfig(eqx.Module):
     imu_grade: str = eqx.field(static=True, default="crossbow_imu300cc")
     odometer: str = eqx.field(static=True, default="obd2_odometer")
     obs_params: observations.ObsParams = eqx.field(static=True, default=observations.ObsParams())
+    # "detector": the filter's slip flags are the receiver's LLI plus, for dual frequency, the
+    # GF / MW detector of real data (gnss/slips.py); "oracle": the simulator's true arc starts
+    # (isolates other effects from detection misses and false alarms).
+    slip_flags: str = eqx.field(static=True, default="detector")
 
 
 class Geometry(NamedTuple):
@@ -109,7 +113,37 @@ def build_geometry(cfg: ScenarioConfig, profile: trajectory.Profile | None = Non
     return Geometry(truth, truth_ep, pos, vel, table, slots, orbits, float(doy))
 
 
-def _gnss_obs(obs: observations.Observations, code_band0: int, broadcast: bool) -> ppp.GnssObs:
+SLIP_FLAGS = ("detector", "oracle")
+
+
+def slip_flags(
+    obs: observations.Observations, code_band0: int, how: str = "detector"
+) -> jnp.ndarray:
+    """The filter's slip flags [T, S]: ``obs.lli`` | GF | MW (dual frequency), or the truth.
+
+    A single-frequency user (``code_band0`` = C1) has no GF / MW combination: LLI only, as
+    ``io/prepare.py`` does on recorded data.
+    """
+    if how == "oracle":
+        return obs.slip
+    if how != "detector":
+        raise ValueError(f"unknown slip_flags {how!r}; use {' or '.join(SLIP_FLAGS)}")
+    if code_band0 == signals.CODE_C1:
+        return obs.lli
+    gf, mw = slips.detect_slips_dual(
+        obs.phase_cyc * obs.wavelength_m,
+        jnp.stack([obs.code_m[..., code_band0], obs.code_m[..., signals.CODE_P2]], axis=-1),
+        obs.valid,
+        obs.elevation_rad,
+        obs.freq_hz[:, 0],
+        obs.freq_hz[:, 1],
+    )
+    return obs.lli | gf | mw
+
+
+def _gnss_obs(
+    obs: observations.Observations, code_band0: int, broadcast: bool, how_slips: str = "detector"
+) -> ppp.GnssObs:
     """Filter-side view of simulated observables (stacked over epochs).
 
     The satellite code biases the user knows (precise-clock convention, S002 §2.1.4) are
@@ -133,7 +167,7 @@ def _gnss_obs(obs: observations.Observations, code_band0: int, broadcast: bool) 
         phase_m=obs.phase_cyc * obs.wavelength_m,
         range_rate_m_s=-obs.wavelength_m[:, 0] * obs.doppler_hz[..., 0],
         available=obs.valid,
-        slip=obs.slip,
+        slip=slip_flags(obs, code_band0, how_slips),
         code_bias_m=jnp.broadcast_to(code_bias, code.shape),
         iono_model_l1_m=obs.iono_model_l1_m,
         sat=sat,
@@ -175,7 +209,7 @@ def realize(
         with_truth=False,
     )
     band0 = signals.CODE_C1 if single_frequency else signals.CODE_P1
-    gobs = _gnss_obs(obs, band0, broadcast)
+    gobs = _gnss_obs(obs, band0, broadcast, cfg.slip_flags)
 
     n_ep = geo.truth_ep.time_s.shape[0] - 1
     k = int(round(cfg.epoch_interval_s * cfg.imu_rate_hz))

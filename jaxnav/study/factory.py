@@ -18,6 +18,10 @@ its initial carry and the realisation's stacked inputs (``sweep.Problem``).
     constellations = ["gps"]  # any of gps, glonass, galileo (S004 multi-GNSS, with ISB states)
     slots = [16, 14, 14]      # fixed satellite slots per constellation (GPS, GLONASS, Galileo)
     bssd = false              # between-satellite single differences (S004) instead of UD
+    environment = "open_sky"  # cycle-slip and loss-of-lock rates: none | open_sky | suburban |
+                              # urban (sim.observations.SLIP_ENVIRONMENTS)
+    slip_flags = "detector"   # the filter's slips: LLI + GF / MW detector (as on real data),
+                              # or "oracle" (the simulator's true arc starts)
     drive_style = "airborne"  # also allowed: a seeded random flight (S001) instead of a drive
 
 Systems: ``riss`` (S000's 16-state RISS, 1 Hz inputs), ``riss9`` (S002's 9 + GNSS states),
@@ -94,6 +98,8 @@ SCENARIO_SCHEMA = {
     "slots": schema.items(schema.whole(1), length=3, unique=False),
     "bssd": schema.boolean(),
     "iono_model": schema.choice(IONO_MODELS),
+    "environment": schema.choice(observations.SLIP_ENVIRONMENTS, "cycle-slip rates"),
+    "slip_flags": schema.choice(scenario.SLIP_FLAGS),
 }
 _STATIC_CALIBRATION_EPOCHS = 30  # the drives start with a 60 s standstill
 
@@ -126,9 +132,13 @@ class SimFactory:
             odometer=t.get("odometer", "obd2_odometer"),
             systems=tuple(sorted(_CONSTELLATIONS[c] for c in set(names))),
             slots_per_system=tuple(slots),
-            obs_params=observations.ObsParams(
-                iono_scale=t.get("iono_scale", 1.0), gim_error_fraction=gim_fraction
+            obs_params=observations.slip_environment(
+                observations.ObsParams(
+                    iono_scale=t.get("iono_scale", 1.0), gim_error_fraction=gim_fraction
+                ),
+                t.get("environment", "open_sky"),
             ),
+            slip_flags=t.get("slip_flags", "detector"),
         )
         self.ins_grade = grades[1]
 
