@@ -130,11 +130,16 @@ def test_ten_second_outage_error_is_bounded_and_reported(run):
         k = np.flatnonzero(w)
         path = np.sum(np.linalg.norm(np.diff(ref_enu[k[0] - 1 : k[-1] + 1], axis=0), axis=1))
         line = next(ln for ln in run["text"].splitlines() if ln.split()[:1] == [oid])
-        start_p, length_p, dist_p, max_p, final_p = (float(x) for x in line.split()[1:])
+        start_p, length_p, dist_p, max_p, final_p, z2e_p, z2n_p = (
+            float(x) for x in line.split()[1:])
         assert (start_p, length_p) == (s, n)
         assert dist_p == pytest.approx(path, abs=0.15)
         assert max_p == pytest.approx(e2[w].max(), abs=2e-3)  # .pos rounds to 0.1 mm
         assert final_p == pytest.approx(e2[k[-1]], abs=2e-3)
+        # (error / sigma)^2 with the written sdE / sdN (rounded to 0.1 mm, so 1 % here)
+        z2 = lc.sigma_ratios(e, sol.sd_neu_m)[w]
+        assert z2e_p == pytest.approx(np.mean(z2[:, 0]), rel=0.01, abs=0.01)
+        assert z2n_p == pytest.approx(np.mean(z2[:, 1]), rel=0.01, abs=0.01)
         print(f"{oid}: {n:g} s, {path:.1f} m driven, max 2D {e2[w].max():.2f} m, final "
               f"{e2[k[-1]]:.2f} m, 5 s after the outage {e2[k[-1] + 20]:.3f} m")
         assert e2[k[-1] + 20] < 0.3
@@ -143,6 +148,36 @@ def test_ten_second_outage_error_is_bounded_and_reported(run):
     path = np.sum(np.linalg.norm(np.diff(ref_enu[k[0] - 1 : k[-1] + 1], axis=0), axis=1))
     assert path > 50.0  # the car is moving through out1
     assert 0.3 < e2[w].max() < 0.10 * path
+
+
+# The six outages of docs/validation.md (whole drive).
+DOC_OUTAGES = (("hill10", 70, 10), ("hill15", 120, 15), ("hill30", 220, 30), ("lot10", 340, 10),
+               ("lot30", 400, 30), ("fast15", 450, 15))
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 16: the outage sigmas are over-confident on this car, mean (error / sigma)^2 E 8.1, "
+    "N 3.4 (docs/validation.md): quadratic along-track errors of ~12 mg from the start of the two "
+    "fast downhill outages that no modelled error source covers"))
+def test_outage_sigmas_are_true_on_the_car(tmp_path):
+    """Issue 16's bar for real data: over the epochs of the six documented outages the mean of
+    (error / written sigma)^2 per horizontal axis lies in [1/3, 3] (1 for true sigmas)."""
+    _need_data()
+    sched = tmp_path / "outages.csv"
+    sched.write_text("id,start_s,length_s\n" + "".join(f"{i},{s},{n}\n" for i, s, n in DOC_OUTAGES))
+    out = tmp_path / "drive.pos"
+    buf = io.StringIO()
+    with warnings.catch_warnings(), contextlib.redirect_stdout(buf):
+        warnings.simplefilter("ignore", UserWarning)
+        assert lc.main(["--imu", str(IMU), "--imu-tag", str(TAG), "--gnss", str(GNSS), "--config",
+                        str(CONFIG), "--outages", str(sched), "--out", str(out)]) == 0
+    sol, ref = read_pos(out), read_pos(GNSS)
+    idx = np.searchsorted(ref.time_gps_s, sol.time_gps_s - 1e-4)
+    z2 = lc.sigma_ratios(_enu_error(sol.llh, ref.llh[idx]), sol.sd_neu_m)[sol.outage]
+    ze, zn = np.mean(z2[:, 0]), np.mean(z2[:, 1])
+    print(buf.getvalue(), f"mean (error / sigma)^2 in the outages: E {ze:.2f}, N {zn:.2f}")
+    assert sol.outage.sum() == 4 * sum(n for _, _, n in DOC_OUTAGES)
+    assert 1 / 3 <= ze <= 3 and 1 / 3 <= zn <= 3
 
 
 def test_sweep_engine_equals_one_run_per_outage(tmp_path, goldens):

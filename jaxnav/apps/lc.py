@@ -121,6 +121,15 @@ PROG = "jaxnav lc"
 # ----------------------------------------------------------------------------------------------
 # Command line
 # ----------------------------------------------------------------------------------------------
+def sigma_ratios(err_enu: np.ndarray, sd_neu_m: np.ndarray) -> np.ndarray:
+    """(error / sigma)^2 per epoch and axis [E, 3] (E, N, U), sigmas in RTKLIB (n, e, u) order.
+
+    Its mean over epochs is 1 when the written sigmas are true (a chi-square with 1 dof per axis).
+    """
+    sd_enu = sd_neu_m[:, [1, 0, 2]]
+    return (err_enu / sd_enu) ** 2
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("--imu", required=True, help="IMU CSV log (acc [g], gyro, tick [ms])")
@@ -218,12 +227,18 @@ def _main(args) -> int:
               f" (1 = consistent)")
     if plan is not None:
         m = outage_metrics(drive, sol.llh, out, plan)
+        z2 = sigma_ratios(err, sol.sd_neu_m)
         print(f"{'outage':>8} {'start_s':>8} {'length_s':>8} {'dist_m':>8} {'max_2d_m':>9} "
-              f"{'final_2d_m':>10}")
+              f"{'final_2d_m':>10} {'z2_e':>6} {'z2_n':>6}")
         for k, oid in enumerate(plan.ids):
+            w = slice(int(plan.start_epoch[k]), int(plan.start_epoch[k] + plan.n_epochs[k]))
+            ze, zn = np.mean(z2[w, :2], axis=0)
             print(f"{oid:>8} {plan.start_s[k]:8.2f} {plan.length_s[k]:8.2f} "
                   f"{float(m.distance_m[k]):8.1f} {float(m.max_2d_m[k]):9.3f} "
-                  f"{float(m.end_2d_m[k]):10.3f}")
+                  f"{float(m.end_2d_m[k]):10.3f} {ze:6.2f} {zn:6.2f}")
+        ze, zn, zu = np.mean(z2[withheld], axis=0)
+        print(f"sigma check over the {int(withheld.sum())} outage epochs: mean (error / sigma)^2 "
+              f"E {ze:.2f}, N {zn:.2f}, U {zu:.2f} (1 = sigmas true; z2_e / z2_n per outage)")
     print(f"wrote {args.out}; read {t_read - t_start:.1f} s, filter {t_run - t_read:.1f} s "
           f"(incl. compilation)")
 
