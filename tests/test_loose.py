@@ -11,6 +11,7 @@ outage variants are one ``vmap`` of one compiled ``run``. Outage variants differ
 withheld window (which aids are switched on there), so each comparison is paired by key.
 """
 
+import dataclasses
 import math
 
 import jax
@@ -304,6 +305,72 @@ def test_zupt_waits_for_missing_gnss_velocity_but_zaru_does_not(runs):
     print(f"z gyro bias error after the 30 s standstill: {np.degrees(gz_err).std() * 3600:.1f}"
           " deg/h rms")  # fmt: skip
     assert np.degrees(np.abs(gz_err)).max() * 3600 < 50.0
+
+
+# ---- time-correlated fixes (fix_bias_tau_s) ----------------------------------------------------
+FIX_TAU_S = 60.0  # truth and filter: the fix error is a first-order Gauss-Markov process
+N_GM = 64
+
+
+@pytest.fixture(scope="module")
+def gm_runs(sim):
+    """Full-GNSS runs whose fixes carry a GM position error (tau 60 s, 0.5 m per axis) and report
+    its steady sigma: once with the filter's fix-bias states, once weighting the fixes as white.
+    Same keys (paired)."""
+    truth, ep, _, llh_ant, vel_ant = sim
+    grade, lf_white = _filter()
+    lf_gm = loose.LooseFilter(lf_white.system, dataclasses.replace(
+        lf_white.cfg, fix_bias_tau_s=FIX_TAU_S), lf_white.imu_dt_s, 1.0)
+    n_ep = ep.time_s.shape[0] - 1
+    sig = NavSigmas(pos_m=SIGMA_POS_M, vel_m_s=SIGMA_VEL_M_S, roll_pitch_rad=0.05)
+    rho = math.exp(-1.0 / FIX_TAU_S)
+
+    def one_run(lf, key):
+        k_imu, k_gm0, k_gm, k_vel = jax.random.split(key, 4)
+        dth, dv, _ = sensors.simulate_imu(
+            k_imu, truth.dtheta_b[1:], truth.dv_b[1:], 1.0 / RATE_HZ, grade)
+        # e_k = rho e_k-1 + sqrt(1 - rho^2) sigma n_k, stationary from the first epoch
+        e0 = SIGMA_POS_M * jax.random.normal(k_gm0, (3,))
+        drive = math.sqrt(1.0 - rho**2) * SIGMA_POS_M * jax.random.normal(k_gm, (n_ep, 3))
+        _, noise_enu = jax.lax.scan(lambda e, q: (rho * e + q, rho * e + q), e0, drive)
+        m_n, m_e, _ = jax.vmap(geodesy.metres_per_radian)(llh_ant[1:]).T
+        dllh = jnp.stack([noise_enu[:, 1] / m_n, noise_enu[:, 0] / m_e, noise_enu[:, 2]], -1)
+        vel_noise = SIGMA_VEL_M_S * jax.random.normal(k_vel, (n_ep, 3))
+        fix = loose.gnss_fix(llh_ant[1:] + dllh, vel_ant[1:] + vel_noise, SIGMA_POS_M,
+                             SIGMA_VEL_M_S, True, True)
+        samples = strapdown.ImuIncrements(dth.reshape(n_ep, K, 3), dv.reshape(n_ep, K, 3))
+        inputs = loose.epoch_inputs(samples, fix, None, None, True, True)
+        euler0 = loose.align_from_gnss(jnp.zeros(3), samples.dv_b[0].sum(0)).at[2].set(0.0)
+        lever_l = attitude.dcm_from_euler(euler0) @ LEVER_ANT_B
+        llh0 = fix.llh[0] - geodesy.llh_rate_matrix(fix.llh[0]) @ lever_l
+        carry = loose.initial_carry(lf, loose.initial_nav(llh0, jnp.zeros(3), euler0), sig)
+        _, out = loose.run(lf, carry, inputs)
+        return out
+
+    keys = jax.random.split(jax.random.PRNGKey(7), N_GM)
+    res = {}
+    for name, lf in (("white", lf_white), ("gm_states", lf_gm)):
+        out = jax.jit(jax.vmap(lambda k, lf=lf: one_run(lf, k)))(keys)
+        dllh = np.asarray(out.llh) - np.asarray(ep.llh)[None, 1:]
+        P = np.asarray(out.P_nav)[..., :3, :3]
+        res[name] = np.einsum("rti,rtij,rtj->rt", dllh, np.linalg.inv(P), dllh)[:, CONVERGED:]
+    return res
+
+
+def test_time_correlated_fixes_keep_the_position_nees_in_its_band(gm_runs):
+    """Fixes with a 60 s Gauss-Markov error: with the fix-bias states (Groves 14.3.1) the
+    ensemble-mean position NEES is 3 within the chi-square band of N runs, as the white-fix filter
+    is for white fixes (test_position_nees_within_chi_square_band); weighting the correlated fixes
+    as white makes it over-confident (the cascade's issue-16 defect)."""
+    n = N_GM
+    lo, hi = (_chi2_quantile(3 * n, z) / n for z in (-1.959964, 1.959964))
+    avg = {k: v.mean(axis=0) for k, v in gm_runs.items()}
+    for k, a in avg.items():
+        print(f"{k}: position NEES mean {a.mean():.2f}, {100 * np.mean((a > lo) & (a < hi)):.0f} "
+              f"% of epochs in [{lo:.2f}, {hi:.2f}]")
+    assert lo < avg["gm_states"].mean() < hi
+    assert np.mean((avg["gm_states"] > lo) & (avg["gm_states"] < hi)) > 0.85
+    assert avg["white"].mean() > hi  # the defect the states remove
 
 
 # ---- helpers (no filter run) ------------------------------------------------------------------

@@ -68,6 +68,12 @@ LC_SYSTEMS = {
 }
 #: Tightly coupled full-IMU systems with the NHC update (``TightFilter.nhc_sigma_m_s``).
 TC_NHC_SYSTEMS = ("ins15_nhc", "ins21_nhc")
+# Correlation time [s] of the stand-alone PPP solution's position error per mode: the LC filter
+# models its fix error as a Gauss-Markov process with it (filter.loose fix_bias_tau_s). Measured
+# in the realistic simulator, 8 runs x 900 s after 300 s (1/e lag of the error autocorrelation,
+# benchmarks/ppp_error_correlation.py, RESULTS.md 2026-12-03), rounded.
+LC_FIX_BIAS_TAU_S = {"sf_code": 315.0, "df_code": 55.0, "sdf_code": 62.0, "float_ppp": 400.0,
+                     "ic_ppp": 600.0, "sf_ppp": 600.0}
 NHC_SIGMA_M_S = 1.0  # S003: NHC noise 1 m/s (a 2-3 deg misalignment at 18-20 m/s)
 #: PPP alone: the tight filter's PPP rows and resets on a GNSS-only receiver
 #: (``ppp_only.GnssOnlySystem``), scored against the true ANTENNA track (the receiver estimates
@@ -208,7 +214,8 @@ class SimFactory:
         if system_name in LC_SYSTEMS:
             _, nhc, zupt = LC_SYSTEMS[system_name]
             lcfg = loose.LooseConfig(
-                use_nhc=nhc, nhc_sigma_m_s=NHC_SIGMA_M_S, use_zupt=zupt, use_zaru=zupt
+                use_nhc=nhc, nhc_sigma_m_s=NHC_SIGMA_M_S, use_zupt=zupt, use_zaru=zupt,
+                fix_bias_tau_s=LC_FIX_BIAS_TAU_S.get(mode),
             )
             lf = loose.LooseFilter(system, lcfg, 1.0 / rate, cfg.epoch_interval_s)
             return cascade.make_filter(pcfg, geo.slots, lf)
