@@ -29,6 +29,7 @@ The last line printed is JSON ``{"<mode>/<system>": {"anees_pos": .., "anees_vel
     python benchmarks/consistency.py            # 200 runs x 900 s, every cell (hours)
     python benchmarks/consistency.py --quick    # 16 runs x 420 s, a few cells (minutes)
     python benchmarks/consistency.py --environment urban --cells float_ppp/riss,df_code/riss
+    python benchmarks/consistency.py --lc-fix-errors correlated --cells float_ppp/lc_ins15
 """
 
 from __future__ import annotations
@@ -108,6 +109,8 @@ def main(argv=None) -> int:
     p.add_argument("--duration", type=float, help="drive length [s] (default 900, quick 420)")
     p.add_argument("--settle", type=float, default=300.0,
                    help="seconds left out at the start (default 300)")
+    p.add_argument("--lc-fix-errors", default="white", choices=["white", "correlated"],
+                   help="the LC cells' model of the PPP fix error (study.factory key)")
     p.add_argument("--environment", default="open_sky", choices=list(SLIP_ENVIRONMENTS),
                    help="cycle-slip / loss-of-lock rates of the simulated receiver (default "
                         "open_sky); the filters get LLI + the GF / MW detector's flags")
@@ -128,10 +131,12 @@ def main(argv=None) -> int:
     else:
         cells = tuple((m, s) for m in FULL_MODES for s in FULL_SYSTEMS) + (
             ("float_ppp", "lc_ins15"),)
-    factory = SimFactory({"duration_s": duration, "environment": a.environment})
+    factory = SimFactory({"duration_s": duration, "environment": a.environment,
+                          "lc_fix_errors": a.lc_fix_errors})
     figures, lines = {}, []
     lines.append(f"{n_runs} runs x {duration:.0f} s per cell (default drive, every simulated "
-                 f"error source on, slip environment {a.environment}, detected slips), epochs "
+                 f"error source on, slip environment {a.environment}, detected slips, LC fix "
+                 f"errors {a.lc_fix_errors}), epochs "
                  f"after {a.settle:.0f} s; bands two-sided 95 %.")
     lines.append("")
     lines.append("| mode / system | ANEES pos | ANEES vel | band (3 dof) | median NEES pos | ANIS "

@@ -343,9 +343,11 @@ def discussion(ours, gain, valid_frac) -> str:
         "(here the simulator's own ARW / VRW, a filter model that matches the truth, which a "
         "real data set never gives); (3) the initial covariances and the truth initialisation "
         "plus the 60-s standstill gyro calibration (S003's turn-on bias of 5400 deg/h is "
-        "estimated in the filter instead); (4) the absolute GNSS sigmas (code 0.5 m, phase 3 "
-        "mm) and the simulated multipath, which set the PPP accuracy and therefore the "
-        "position / velocity rows; (5) the drive itself (S003's route and dynamics are unknown: "
+        "estimated in the filter instead); (4) the GNSS noise (code 0.2 m and phase 2 mm white "
+        "at zenith plus 0.2 m / 2 mm of 30-s multipath) and the product residuals, which set "
+        "the PPP accuracy and therefore the position / velocity rows, and for LC the model of "
+        "the PPP fix's correlated error (`fix_bias_tau_s`, issue 16); (5) the drive itself "
+        "(S003's route and dynamics are unknown: "
         "the azimuth observability comes from horizontal accelerations)."
     )
     lines.append(

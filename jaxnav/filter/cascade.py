@@ -32,8 +32,11 @@ the INS (plus NHC / odometer / ZUPT when configured). The first epoch back with 
 is a valid fix again, with the PPP covariance (grown during the outage, phase ambiguities reset)
 as its weight.
 
-Known limitation of every cascade (not modelled, as in S003): the PPP solution's errors are
-correlated in time, while the LC filter weights each epoch's fix as independent.
+The PPP solution's errors are correlated in time (S003 does not model it): with
+``LooseConfig.fix_bias_tau_s`` the LC filter estimates the fix's position error as states whose
+variance follows the PPP covariance (``filter.loose`` docstring); the study factory sets it per
+mode when ``[scenario] lc_fix_errors = "correlated"`` (not the default, docs/models.md). The
+velocity fixes are always weighted as independent.
 
 Carry = ``Carry(ppp, lc)``; ``run`` = ``lax.scan`` of ``epoch_step``; ``cascade_ops()`` adapts it
 to the sweep engine (``core.ops.FilterOps``): the keep mask is the PPP input's, the readout is

@@ -22,6 +22,9 @@ its initial carry and the realisation's stacked inputs (``sweep.Problem``).
                               # urban (sim.observations.SLIP_ENVIRONMENTS)
     slip_flags = "detector"   # the filter's slips: LLI + GF / MW detector (as on real data),
                               # or "oracle" (the simulator's true arc starts)
+    lc_fix_errors = "white"   # LC systems: the PPP fix's error as independent per epoch, or
+                              # "correlated" (fix-bias states, LC_FIX_BIAS_TAU_S; not yet the
+                              # default: docs/models.md)
     drive_style = "airborne"  # also allowed: a seeded random flight (S001) instead of a drive
 
 Systems: ``riss`` (S000's 16-state RISS, 1 Hz inputs), ``riss9`` (S002's 9 + GNSS states),
@@ -68,8 +71,9 @@ LC_SYSTEMS = {
 }
 #: Tightly coupled full-IMU systems with the NHC update (``TightFilter.nhc_sigma_m_s``).
 TC_NHC_SYSTEMS = ("ins15_nhc", "ins21_nhc")
-# Correlation time [s] of the stand-alone PPP solution's position error per mode: the LC filter
-# models its fix error as a Gauss-Markov process with it (filter.loose fix_bias_tau_s). Measured
+# Correlation time [s] of the stand-alone PPP solution's position error per mode: with
+# [scenario] lc_fix_errors = "correlated" the LC filter models its fix error as a Gauss-Markov
+# process with it (filter.loose fix_bias_tau_s). Measured
 # in the realistic simulator, 8 runs x 900 s after 300 s (1/e lag of the error autocorrelation,
 # benchmarks/ppp_error_correlation.py, RESULTS.md 2026-12-03), rounded.
 LC_FIX_BIAS_TAU_S = {"sf_code": 315.0, "df_code": 55.0, "sdf_code": 62.0, "float_ppp": 400.0,
@@ -106,6 +110,7 @@ SCENARIO_SCHEMA = {
     "iono_model": schema.choice(IONO_MODELS),
     "environment": schema.choice(observations.SLIP_ENVIRONMENTS, "cycle-slip rates"),
     "slip_flags": schema.choice(scenario.SLIP_FLAGS),
+    "lc_fix_errors": schema.choice(("white", "correlated"), "LC fix-error models"),
 }
 _STATIC_CALIBRATION_EPOCHS = 30  # the drives start with a 60 s standstill
 
@@ -129,6 +134,7 @@ class SimFactory:
         slots = t.get("slots", (16, 14, 14))
         gim_fraction, self.iono_model_fraction = IONO_MODELS[t.get("iono_model", "klobuchar")]
         self.bssd = t.get("bssd", False)
+        self.lc_fix_correlated = t.get("lc_fix_errors", "white") == "correlated"
         grades = [t.get("imu_grade", "crossbow_imu300cc"), t.get("ins_grade", "span_cpt")]
         self.cfg = scenario.ScenarioConfig(
             drive_seed=t.get("drive_seed", 0),
@@ -215,7 +221,7 @@ class SimFactory:
             _, nhc, zupt = LC_SYSTEMS[system_name]
             lcfg = loose.LooseConfig(
                 use_nhc=nhc, nhc_sigma_m_s=NHC_SIGMA_M_S, use_zupt=zupt, use_zaru=zupt,
-                fix_bias_tau_s=LC_FIX_BIAS_TAU_S.get(mode),
+                fix_bias_tau_s=LC_FIX_BIAS_TAU_S.get(mode) if self.lc_fix_correlated else None,
             )
             lf = loose.LooseFilter(system, lcfg, 1.0 / rate, cfg.epoch_interval_s)
             return cascade.make_filter(pcfg, geo.slots, lf)
