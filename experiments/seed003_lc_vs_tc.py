@@ -345,8 +345,9 @@ def discussion(ours, gain, valid_frac) -> str:
         "plus the 60-s standstill gyro calibration (S003's turn-on bias of 5400 deg/h is "
         "estimated in the filter instead); (4) the GNSS noise (code 0.2 m and phase 2 mm white "
         "at zenith plus 0.2 m / 2 mm of 30-s multipath) and the product residuals, which set "
-        "the PPP accuracy and therefore the position / velocity rows, and for LC the model of "
-        "the PPP fix's correlated error (`fix_bias_tau_s`, issue 16); (5) the drive itself "
+        "the PPP accuracy and therefore the position / velocity rows, and for LC that each PPP "
+        "fix is weighted as independent although its error is correlated for minutes (the "
+        "factory default; docs/models.md); (5) the drive itself "
         "(S003's route and dynamics are unknown: "
         "the azimuth observability comes from horizontal accelerations)."
     )
