@@ -83,6 +83,16 @@ def sim():
     return truth, ep, C, llh_ant, vel_ant
 
 
+def _run_from_rest(lf, samples, fix, inputs, sig):
+    """Start levelled from the first second's mean specific force, heading unknown (0),
+    position from the first fix (antenna lever rotated with that attitude), at rest; run."""
+    euler0 = loose.align_from_gnss(jnp.zeros(3), samples.dv_b[0].sum(0)).at[2].set(0.0)
+    lever_l = attitude.dcm_from_euler(euler0) @ LEVER_ANT_B
+    llh0 = fix.llh[0] - geodesy.llh_rate_matrix(fix.llh[0]) @ lever_l
+    carry = loose.initial_carry(lf, loose.initial_nav(llh0, jnp.zeros(3), euler0), sig)
+    return loose.run(lf, carry, inputs)[1]
+
+
 def _filter():
     grade = sensors.lsm6dsl()
     system = InsSystem(layout=INS27, model=loose.imu_error_model(grade), lever_b=LEVER_ANT_B)
@@ -125,13 +135,7 @@ def runs(sim):
         )  # fmt: skip
         samples = strapdown.ImuIncrements(dth.reshape(n_ep, K, 3), dv.reshape(n_ep, K, 3))
         inputs = loose.epoch_inputs(samples, fix, odo, odo_valid, nhc_valid, zupt_allowed)
-        # Start: levelled from the first second's mean specific force, heading unknown (0),
-        # position from the first fix (antenna lever rotated with that attitude), at rest.
-        euler0 = loose.align_from_gnss(jnp.zeros(3), samples.dv_b[0].sum(0)).at[2].set(0.0)
-        lever_l = attitude.dcm_from_euler(euler0) @ LEVER_ANT_B
-        llh0 = fix.llh[0] - geodesy.llh_rate_matrix(fix.llh[0]) @ lever_l
-        carry = loose.initial_carry(lf, loose.initial_nav(llh0, jnp.zeros(3), euler0), sig)
-        _, out = loose.run(lf, carry, inputs)
+        out = _run_from_rest(lf, samples, fix, inputs, sig)
         return out, imu_err.gyro_bias_rad_s[K - 1 :: K]
 
     t = np.arange(1, n_ep + 1)
@@ -340,12 +344,7 @@ def gm_runs(sim):
                              SIGMA_VEL_M_S, True, True)
         samples = strapdown.ImuIncrements(dth.reshape(n_ep, K, 3), dv.reshape(n_ep, K, 3))
         inputs = loose.epoch_inputs(samples, fix, None, None, True, True)
-        euler0 = loose.align_from_gnss(jnp.zeros(3), samples.dv_b[0].sum(0)).at[2].set(0.0)
-        lever_l = attitude.dcm_from_euler(euler0) @ LEVER_ANT_B
-        llh0 = fix.llh[0] - geodesy.llh_rate_matrix(fix.llh[0]) @ lever_l
-        carry = loose.initial_carry(lf, loose.initial_nav(llh0, jnp.zeros(3), euler0), sig)
-        _, out = loose.run(lf, carry, inputs)
-        return out
+        return _run_from_rest(lf, samples, fix, inputs, sig)
 
     keys = jax.random.split(jax.random.PRNGKey(7), N_GM)
     res = {}
