@@ -179,6 +179,14 @@ def metres_per_radian(llh):
     return jnp.stack([r_m + h, (r_n + h) * jnp.cos(lat), jnp.ones_like(h)])
 
 
+def llh_error_to_enu_matrix(llh):
+    """T [3, 3] with (east, north, up) = T (d_lat, d_lon, d_h): ``metres_per_radian`` laid out
+    for covariances, T P_llh T^T."""
+    m_north, m_east, _ = metres_per_radian(llh)
+    z = jnp.zeros_like(m_north)
+    return jnp.array([[z, m_east, z], [m_north, z, z], [z, z, z + 1.0]])
+
+
 @jax.jit
 def llh_error_to_enu(dllh, llh):
     """Convert a small geodetic error (d_lat, d_lon, d_h) into ENU metres."""

@@ -109,9 +109,7 @@ def fix_from_ppp(ppp_tf: tight.TightFilter, out: tight.EpochOutput, min_sats=MIN
     pos, vel = layout.sl("pos"), layout.sl("vel")
 
     def one(llh, vel_enu, P_nav, n_sat):
-        m_north, m_east, _ = geodesy.metres_per_radian(llh)
-        z = jnp.zeros_like(m_north)
-        T = jnp.array([[z, m_east, z], [m_north, z, z], [z, z, z + 1.0]])
+        T = geodesy.llh_error_to_enu_matrix(llh)
         cov_pos = T @ P_nav[pos, pos] @ T.T
         cov_vel = P_nav[vel, vel]
         ok = n_sat >= min_sats

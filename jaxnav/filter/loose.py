@@ -361,9 +361,7 @@ def _align_fix_bias(layout, P, fix_bias, V, C_b, C_fix, llh_fix, now):
     position block the full A C_fix A^T; without the cross term the filter would take the two
     for independent and halve a variance it cannot reduce."""
     b, pos = layout.sl("fix_bias"), layout.sl("pos")
-    m_north, m_east, _ = geodesy.metres_per_radian(llh_fix)
-    z = jnp.zeros_like(m_north)
-    A = jnp.array([[z, 1.0 / m_north, z], [1.0 / m_east, z, z], [z, z, z + 1.0]])
+    A = jnp.linalg.inv(geodesy.llh_error_to_enu_matrix(llh_fix))
     P_new = P.at[b, :].set(0.0).at[:, b].set(0.0).at[b, b].set(C_b)
     P_new = P_new.at[pos, b].set(-A @ C_b).at[b, pos].set(-(A @ C_b).T)
     P_new = P_new.at[pos, pos].set(A @ C_fix @ A.T)
@@ -378,9 +376,7 @@ def _gnss_rows(lf: LooseFilter, layout, rx, fix: GnssFix):
     # L J_llh with L = geodesy.llh_to_ecef_jacobian, so J_llh = L^-1 J_pos exactly.
     L = geodesy.llh_to_ecef_jacobian(llh_ant)
     J_llh = jnp.linalg.solve(L, rx.J_pos)
-    m_north, m_east, _ = geodesy.metres_per_radian(llh_ant)  # metres per rad of lat, lon
-    z = jnp.zeros_like(m_north)
-    to_enu = jnp.array([[z, m_east, z], [m_north, z, z], [z, z, z + 1.0]])
+    to_enu = geodesy.llh_error_to_enu_matrix(llh_ant)
     dllh = llh_ant - fix.llh
     dllh = dllh.at[1].set(attitude.wrap_angle(dllh[1]))
     white = 1.0 if cfg.fix_bias_tau_s is None else 1.0 - cfg.fix_bias_share
