@@ -354,18 +354,18 @@ def _propagate_fix_bias(lf: LooseFilter, layout, P, carry: Carry, fix: GnssFix):
     return a * carry.fix_bias, P, C_k
 
 
-def _align_fix_bias(layout, P, fix_bias, V, C_b, C_fix, llh_fix, now):
+def _align_fix_bias(layout, P, fix_bias, fix_cov, C_b, C_fix, llh_fix, now):
     """At the in-motion alignment the position is set from the fix, so its error is the fix's
-    error: with b_hat = 0, the position error equals -db exactly. Var(b) = C_b and the
-    position-bias covariance -A C_b (A: ENU metres to the (lat, lon, h) error units), the
-    position block the full A C_fix A^T; without the cross term the filter would take the two
-    for independent and halve a variance it cannot reduce."""
+    error: with b_hat = 0, the position error equals -db exactly. Var(b) = C_b (the new
+    ``fix_cov``), the position-bias covariance -A C_b (A: ENU metres to the (lat, lon, h) error
+    units), the position block the full A C_fix A^T; without the cross term the filter would
+    take the two for independent and halve a variance it cannot reduce."""
     b, pos = layout.sl("fix_bias"), layout.sl("pos")
     A = jnp.linalg.inv(geodesy.llh_error_to_enu_matrix(llh_fix))
     P_new = P.at[b, :].set(0.0).at[:, b].set(0.0).at[b, b].set(C_b)
     P_new = P_new.at[pos, b].set(-A @ C_b).at[b, pos].set(-(A @ C_b).T)
     P_new = P_new.at[pos, pos].set(A @ C_fix @ A.T)
-    return jnp.where(now, 0.0, fix_bias), jnp.where(now, P_new, P), jnp.where(now, C_b, V)
+    return jnp.where(now, 0.0, fix_bias), jnp.where(now, P_new, P), jnp.where(now, C_b, fix_cov)
 
 
 def _gnss_rows(lf: LooseFilter, layout, rx, fix: GnssFix):
