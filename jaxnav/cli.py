@@ -57,11 +57,12 @@ def _demo(args) -> int:
 def _sweep(args) -> int:
     from jaxnav.study import config
     from jaxnav.study.factory import SimFactory
+    from jaxnav.study.sources import factory_for
 
     try:
         cfg = config.load(args.config, modes=SimFactory.modes, systems=SimFactory.systems)
         try:  # the [scenario] table, checked by the factory's schema before any work
-            factory = SimFactory(cfg.scenario_dict)
+            factory = factory_for(cfg.scenario_dict, Path(args.config).parent)
         except config.ConfigError as e:
             raise config.ConfigError(f"{args.config}: {e}") from None
     except config.ConfigError as e:

@@ -55,6 +55,7 @@ LONGEST_FIRST = (
     "test_consistency",
     "test_exp_seed000_004",
     "test_lc_real",
+    "test_replay",
     "test_factory",
     "test_scenario",
     "test_report",

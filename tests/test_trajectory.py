@@ -250,3 +250,18 @@ def test_bad_segments_are_rejected():
         tr.compile_profile([tr.turn(90.0, radius_m=10.0)])
     with pytest.raises(ValueError, match="exactly one"):
         tr.turn(90.0)
+
+
+def test_the_circuit_drive_closes_and_stays_near_its_start():
+    """Laps of a 400 m x 200 m rectangle: the track never leaves the circuit (the farthest
+    point is the far corner, at most the diagonal plus the corners' offset), and it is flat."""
+    llh0 = (math.radians(55.68), math.radians(8.49), 60.0)
+    for seed in (0, 1, 2):
+        truth = tr.generate_truth(drives.circuit_drive(seed, 3600.0, llh0=llh0), 10.0, 3600.0)
+        ep = tr.truth_at_epochs(truth, 30.0)
+        enu = np.asarray(jax.vmap(
+            lambda llh: geodesy.enu_offset(geodesy.llh_to_ecef(llh), jnp.asarray(llh0)))(ep.llh))
+        dist = np.hypot(enu[:, 0], enu[:, 1])
+        assert dist.max() < math.hypot(400.0, 200.0) + 50.0
+        assert dist[-1] < dist.max()  # it came back round, not off along a straight
+        assert np.abs(enu[:, 2]).max() < 0.1

@@ -58,18 +58,9 @@ from jaxnav.io.nav import read_broadcast_ephemeris
 from jaxnav.io.products import read_clk, read_code_dcb, read_ionex, read_sp3
 from jaxnav.io.rinex import read_rinex_obs
 
-#: Receiver-clock bias PSD [m^2/s] (chosen): 1e4 m^2/s is a 550 m 1-sigma step per 30 s epoch,
-#: i.e. white noise for practical purposes (S002 §5.2.2), yet far from float64 trouble.
-CLOCK_PSD_M2_S = 1.0e4
-#: White zenith sigma [m] of one raw code on recorded data (issue 16). The simulator's 0.2 m
-#: P-code noise plus its 30-s multipath leaves a real receiver's slow code errors out: ESBC's
-#: code-minus-carrier keeps ~4 % of its variance correlated beyond 20 min
-#: (experiments/esbc_multipath_calibration.py), and no antenna phase-centre model is applied
-#: (docs/validation.md), which leaves per-satellite errors varying over a pass. Chosen from
-#: ESBC's kinematic dual-frequency run against the ITRF coordinate (24 h, mean (error /
-#: sigma)^2 E, N, U): 14.7, 3.8, 2.8 at 0.2 m; 5.6, 1.5, 1.4 at 0.5 m; 1.75, 0.56, 0.99 at 1.0 m.
-#: A calibration on the one station we have, not a property of every receiver.
-REAL_CODE_SIGMA_M = 1.0
+#: The recorded-data receiver clock and code noise (``gnss.ppp.PppConfig.for_recorded_data``).
+CLOCK_PSD_M2_S = ppp.RECORDED_CLOCK_PSD_M2_S
+REAL_CODE_SIGMA_M = ppp.RECORDED_CODE_SIGMA_M
 #: Initial position 1-sigma [m] around the single-point solution (chosen: SPP is metre-level).
 INIT_POS_SIGMA_M = 30.0
 
@@ -350,10 +341,7 @@ def _main(args, argv, t_start) -> int:
         doppler=False,
         estimate_zwd=args.freq == "dual",
         elevation_mask_rad=math.radians(args.elevation_mask),
-        clock_bias_psd_m2_s=CLOCK_PSD_M2_S,
-        code_sigma_m=REAL_CODE_SIGMA_M,
-        sf_code_sigma_m=REAL_CODE_SIGMA_M,
-    )
+    ).for_recorded_data()
     model = "static" if args.mode == "static" else "random_walk"
     system = ppp_only.GnssOnlySystem(model=model)
     _, out = run_ppp(prep, cfg, system, float(obs.interval_s))

@@ -188,3 +188,68 @@ def random_airborne(seed: int, duration_s: float = 1800.0, llh0=GUANGZHOU_LLH) -
         speed0_mps=speed0,
         bank_gain=COORDINATED_BANK_GAIN,
     )
+
+
+
+def _straight(rng: np.random.Generator, length_m: float, v_in: float, v_out: float):
+    """Segments of one circuit side: from ``v_in`` up to a cruise speed, optionally a stop in
+    the middle, down to ``v_out``; the side covers exactly ``length_m``.
+
+    A smoothstep speed ramp is point-symmetric about its middle, so it covers its mean speed
+    times its duration; the cruise at speed v_c fills the rest of the side. Where the ramps
+    alone would overshoot the side, the cruise speed is lowered until they fit.
+    """
+    v_c = rng.uniform(30.0, 50.0) / 3.6
+    rates = rng.uniform(0.8, 2.0), rng.uniform(1.5, 3.0), rng.uniform(1.5, 3.0)
+    stop_s = rng.uniform(10.0, 40.0) if rng.random() < 0.3 else 0.0
+    while True:
+        legs = [(v_in, v_c, rates[0])]
+        if stop_s:
+            legs += [(v_c, 0.0, rates[1]), (0.0, v_c, rates[0])]
+        legs.append((v_c, v_out, rates[2]))
+        ramps = [(b, _accel_time(a, b, r), 0.5 * (a + b)) for a, b, r in legs]
+        ramp_m = sum(d * v for _, d, v in ramps)
+        if ramp_m <= 0.9 * length_m:
+            break
+        v_c *= 0.9
+    hold_s = (length_m - ramp_m) / v_c / (2 if stop_s else 1)
+    segs = [speed_to(ramps[0][0], ramps[0][1]), cruise(hold_s)]
+    if stop_s:
+        segs += [speed_to(0.0, ramps[1][1]), stop(stop_s), speed_to(v_c, ramps[2][1]),
+                 cruise(hold_s)]
+    segs.append(speed_to(v_out, ramps[-1][1]))
+    return segs, sum(d for _, d, _ in ramps) + hold_s * (2 if stop_s else 1) + stop_s
+
+
+def circuit_drive_segments(
+    rng: np.random.Generator,
+    duration_s: float,
+    side_m: tuple[float, float] = (400.0, 200.0),
+    static_start_s: float = 60.0,
+) -> list[Segment]:
+    """Laps of a closed rectangular circuit (sides ``side_m``, left 90 deg corners).
+
+    Each side accelerates to a cruise speed drawn from 30-50 km/h, holds it and slows to the
+    corner speed (20 km/h, radius 15 m); with probability 0.3 it stops for 10-40 s in the
+    middle. Every side covers exactly its length and every corner is the same manoeuvre at the
+    same speed, so the track closes lap after lap: the replay source (``study/replay.py``)
+    keeps the vehicle within a few hundred metres of the station whose observations it moves.
+    """
+    v_turn, radius, ramp_s = 20.0 / 3.6, 15.0, 1.5
+    segs: list[Segment] = [stop(static_start_s)]
+    t, v, side = static_start_s, 0.0, 0
+    while t < duration_s - 60.0:
+        straight, dt = _straight(rng, side_m[side % 2], v, v_turn)
+        segs += straight
+        segs.append(turn(-90.0, radius_m=radius, ramp_s=ramp_s))
+        t += dt + math.radians(90.0) * radius / v_turn + ramp_s
+        v, side = v_turn, side + 1
+    segs += [speed_to(0.0, _accel_time(v, 0.0, 2.0)), stop(30.0)]
+    return segs
+
+
+def circuit_drive(seed: int, duration_s: float = 1800.0, llh0=KINGSTON_LLH) -> Profile:
+    """Compiled circuit drive from an integer seed (see ``circuit_drive_segments``)."""
+    rng = np.random.default_rng(seed)
+    segs = circuit_drive_segments(rng, duration_s)
+    return compile_profile(segs, llh0=llh0, azimuth0_deg=float(rng.uniform(0.0, 360.0)))

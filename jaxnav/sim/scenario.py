@@ -72,7 +72,7 @@ class Realization(NamedTuple):
     imu_errors: sensors.ImuErrors
 
 
-def _antenna(truth_ep: trajectory.Truth, lever_b):
+def antenna_track(truth_ep: trajectory.Truth, lever_b):
     """True antenna ECEF position and velocity at the epochs (lever arm through the attitude)."""
 
     def one(llh, vel, q, w_ib_b):
@@ -92,12 +92,14 @@ def build_geometry(cfg: ScenarioConfig, profile: trajectory.Profile | None = Non
     """
     if profile is None and cfg.drive_style == "airborne":
         profile = drives.random_airborne(cfg.drive_seed, cfg.duration_s)
+    elif profile is None and cfg.drive_style == "circuit":
+        profile = drives.circuit_drive(cfg.drive_seed, cfg.duration_s)
     elif profile is None:
         profile = drives.random_drive(cfg.drive_seed, cfg.drive_style, cfg.duration_s)
     truth = trajectory.generate_truth(profile, cfg.imu_rate_hz, cfg.duration_s)
     truth_ep = trajectory.truth_at_epochs(truth, cfg.epoch_interval_s)
     lever = jnp.asarray(cfg.lever_b_m, jnp.float64)
-    pos, vel = _antenna(truth_ep, lever)
+    pos, vel = antenna_track(truth_ep, lever)
     orbits = constellation.nominal_constellation(cfg.systems)
     slots_per = tuple(n if s in cfg.systems else 0 for s, n in enumerate(cfg.slots_per_system))
     table = constellation.build_slots(
@@ -190,14 +192,6 @@ def realize(
     clocks instead of precise ones (S002 ch. 4 real-time users).
     """
     k_imu, k_odo, k_obs = jax.random.split(key, 3)
-    truth = geo.truth
-    dt = 1.0 / cfg.imu_rate_hz
-    grade = sensors.imu_grade(cfg.imu_grade)
-    odo = sensors.odometer(cfg.odometer)
-    dth, dv, imu_err = sensors.simulate_imu(k_imu, truth.dtheta_b[1:], truth.dv_b[1:], dt, grade)
-    m = int(round(cfg.imu_rate_hz / cfg.riss_rate_hz))
-    dt_riss = 1.0 / cfg.riss_rate_hz
-    v_od, _ = sensors.simulate_odometer(k_odo, truth.odo_speed_mps[m::m], dt_riss, odo)
     obs = observations.simulate_observations(
         k_obs,
         geo.truth_ep.time_s,
@@ -210,6 +204,21 @@ def realize(
     )
     band0 = signals.CODE_C1 if single_frequency else signals.CODE_P1
     gobs = _gnss_obs(obs, band0, broadcast, cfg.slip_flags)
+    doy = jnp.full(geo.truth_ep.time_s.shape[0] - 1, geo.day_of_year)
+    return with_sensors(k_imu, k_odo, geo, cfg, gobs, doy)
+
+
+def with_sensors(k_imu, k_odo, geo: Geometry, cfg: ScenarioConfig, gobs: ppp.GnssObs, doy):
+    """A ``Realization``: the IMU and odometer simulated along ``geo``'s truth (keys ``k_imu``,
+    ``k_odo``) beside the GNSS observations ``gobs`` [T] of the epochs (``doy`` [T - 1])."""
+    truth = geo.truth
+    dt = 1.0 / cfg.imu_rate_hz
+    grade = sensors.imu_grade(cfg.imu_grade)
+    odo = sensors.odometer(cfg.odometer)
+    dth, dv, imu_err = sensors.simulate_imu(k_imu, truth.dtheta_b[1:], truth.dv_b[1:], dt, grade)
+    m = int(round(cfg.imu_rate_hz / cfg.riss_rate_hz))
+    dt_riss = 1.0 / cfg.riss_rate_hz
+    v_od, _ = sensors.simulate_odometer(k_odo, truth.odo_speed_mps[m::m], dt_riss, odo)
 
     n_ep = geo.truth_ep.time_s.shape[0] - 1
     k = int(round(cfg.epoch_interval_s * cfg.imu_rate_hz))
@@ -237,7 +246,6 @@ def realize(
     )
     rest = jax.tree.map(lambda x: x[1:], gobs)
     keep = jnp.ones_like(rest.available)
-    doy = jnp.full(n_ep, geo.day_of_year)
     obs0 = jax.tree.map(lambda x: x[0], gobs)
     return Realization(
         EpochInput(ins_samples, rest, keep, doy),

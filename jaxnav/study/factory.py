@@ -7,7 +7,8 @@ its initial carry and the realisation's stacked inputs (``sweep.Problem``).
 ``[scenario]`` keys (all optional):
 
     drive_seed = 0            # random drive generator seed
-    drive_style = "mixed"     # mixed | urban | suburban | highway
+    drive_style = "mixed"     # mixed | urban | suburban | highway | circuit (laps of a
+                              # 400 m x 200 m rectangle, sim.drives.circuit_drive)
     duration_s = 900          # drive length
     imu_grade = "crossbow_imu300cc"   # RISS sensors (S000); "ins" systems use ins_grade
     ins_grade = "span_cpt"
@@ -94,7 +95,7 @@ SYSTEMS = ("riss", "riss9", "ins15", "ins21", *LC_SYSTEMS, *TC_NHC_SYSTEMS, PPP_
 #: for the GIM), rounded up.
 IONO_MODELS = {"klobuchar": (None, 0.3), "gim": (0.25, 0.1)}
 _CONSTELLATIONS = {"gps": signals.SYS_GPS, "glonass": signals.SYS_GLO, "galileo": signals.SYS_GAL}
-_DRIVE_STYLES = ("mixed", "urban", "suburban", "highway", "airborne")
+_DRIVE_STYLES = ("mixed", "urban", "suburban", "highway", "circuit", "airborne")
 #: The [scenario] table of a study on simulated drives (``core/schema.py`` rules).
 SCENARIO_SCHEMA = {
     "drive_seed": schema.whole(0),
@@ -112,7 +113,7 @@ SCENARIO_SCHEMA = {
     "slip_flags": schema.choice(scenario.SLIP_FLAGS),
     "lc_fix_errors": schema.choice(("white", "correlated"), "LC fix-error models"),
 }
-_STATIC_CALIBRATION_EPOCHS = 30  # the drives start with a 60 s standstill
+_STATIC_CALIBRATION_S = 30.0  # the drives start with a 60 s standstill
 
 
 class SimFactory:
@@ -203,20 +204,31 @@ class SimFactory:
         """Seconds of the standstill gyro calibration ``start`` does (a flight has none)."""
         if self.cfg.drive_style == "airborne":
             return None
-        return _STATIC_CALIBRATION_EPOCHS * self.cfg.epoch_interval_s
+        return self._calibration_epochs() * self.cfg.epoch_interval_s
+
+    def _calibration_epochs(self) -> int:
+        return max(1, round(_STATIC_CALIBRATION_S / self.cfg.epoch_interval_s))
+
+    def _ppp_config(self, mode: str) -> ppp.PppConfig:
+        """The PPP rows' configuration of ``mode`` (the simulator's stochastic model)."""
+        return ppp.PppConfig(
+            mode=mode,
+            systems=self.cfg.systems,
+            n_slots=int(self.geo.slots.system.shape[0]),
+            estimate_zwd=ppp_modes.get(mode).uses_phase,
+            bssd=self.bssd,
+            iono_model_residual_fraction=self.iono_model_fraction,
+        )
+
+    def _realization(self, seed: int, single_frequency: bool, imu_grade: str):
+        """One noise realisation of the drive (IMU of ``imu_grade``, GNSS of the frequency plan)."""
+        return _realize(self, seed, single_frequency, imu_grade)
 
     def filter(self, mode: str, system_name: str) -> tight.TightFilter | cascade.CascadeFilter:
         cfg, geo = self.cfg, self.geo
         system = self._system(system_name)
         rate = cfg.riss_rate_hz if system_name.startswith("riss") else cfg.imu_rate_hz
-        pcfg = ppp.PppConfig(
-            mode=mode,
-            systems=cfg.systems,
-            n_slots=int(geo.slots.system.shape[0]),
-            estimate_zwd=ppp_modes.get(mode).uses_phase,
-            bssd=self.bssd,
-            iono_model_residual_fraction=self.iono_model_fraction,
-        )
+        pcfg = self._ppp_config(mode)
         if system_name in LC_SYSTEMS:
             _, nhc, zupt = LC_SYSTEMS[system_name]
             lcfg = loose.LooseConfig(
@@ -247,7 +259,7 @@ class SimFactory:
             sens0 = None
         else:
             head = jax.tree.map(
-                lambda x: x[:_STATIC_CALIBRATION_EPOCHS].reshape(-1, *x.shape[2:]),
+                lambda x: x[: self._calibration_epochs()].reshape(-1, *x.shape[2:]),
                 inputs.samples,
             )
             ins = tf.lc if system_name in LC_SYSTEMS else tf
@@ -264,7 +276,7 @@ class SimFactory:
         if system_name == PPP_ALONE:
             return self._ppp_alone(tf, mode, seed)
         grade = self.cfg.imu_grade if system_name.startswith("riss") else self.ins_grade
-        real = _realize(self, int(seed), ppp_modes.get(mode).single_frequency, grade)
+        real = self._realization(int(seed), ppp_modes.get(mode).single_frequency, grade)
         carry0, inputs = self.start(tf, system_name, real)
         t = geo.truth_ep
         truth = metrics.track(t.llh[1:], t.vel_enu[1:], t.euler[1:])
@@ -280,7 +292,7 @@ class SimFactory:
         # The GNSS noise depends only on the seed: reuse a simulator already compiled for this
         # frequency plan (any IMU grade) instead of compiling another one.
         done = [g for (f, g) in self._realize_fns if f == sf]
-        real = _realize(self, int(seed), sf, done[0] if done else self.ins_grade)
+        real = self._realization(int(seed), sf, done[0] if done else self.ins_grade)
         T = int(real.ins_inputs.keep.shape[0])
         inputs = real.ins_inputs._replace(samples=ppp_only.dummy_samples(T))
         llh_ant = jax.vmap(geodesy.ecef_to_llh)(geo.ant_pos_ecef)
