@@ -4,7 +4,8 @@ A factory turns a study's ``[scenario]`` table into (a) one drive (geometry, tru
 slots), shared by every mode, system and realisation, and (b) per (mode, system, seed) a filter,
 its initial carry and the realisation's stacked inputs (``sweep.Problem``).
 
-``[scenario]`` keys (all optional):
+``[scenario]`` keys (all optional; ``source = "replay"`` selects ``study/replay.py`` instead,
+``study/sources.py``):
 
     drive_seed = 0            # random drive generator seed
     drive_style = "mixed"     # mixed | urban | suburban | highway | circuit (laps of a

@@ -223,6 +223,17 @@ class ReplayFactory(SimFactory):
     def _ppp_config(self, mode: str) -> ppp.PppConfig:
         return super()._ppp_config(mode).for_recorded_data()
 
+    def _system(self, name: str):
+        """As on a simulated drive, but RISS16's own receiver-clock states get the recorded
+        data's clock PSD (``PppConfig.for_recorded_data``: the single-point clock removed, a
+        metre-level residual free from epoch to epoch)."""
+        system = super()._system(name)
+        if name == "riss":
+            params = dataclasses.replace(system.params,
+                                         clock_bias_psd_m2_s=ppp.RECORDED_CLOCK_PSD_M2_S)
+            system = dataclasses.replace(system, params=params)
+        return system
+
     def _realization(self, seed: int, single_frequency: bool, imu_grade: str):
         """The replayed observations with the IMU and odometer of ``seed`` (the same keys as
         ``scenario.realize``: k_imu, k_odo, k_obs = split(key, 3); k_obs is unused)."""
