@@ -68,7 +68,11 @@ def _sweep(args) -> int:
     except config.ConfigError as e:
         print(f"jaxnav sweep: invalid study: {e}", file=sys.stderr)
         return 2
-    return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite)
+    try:
+        return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite)
+    except config.ConfigError as e:  # found when the plan turns seconds into epochs
+        print(f"jaxnav sweep: invalid study: {args.config}: {e}", file=sys.stderr)
+        return 2
 
 
 def _first_line(obj) -> str:

@@ -39,6 +39,11 @@ TINY = textwrap.dedent(
     # the [scenario] table is the factory's: checked by its schema, also before any work
     ('constellations = ["gps"]', 'constellations = ["gps", "beidu"]',
      ["scenario.constellations[1] = 'beidu'", "'galileo'"]),
+    ('constellations = ["gps"]', 'source = "recorded"', ["scenario.source = 'recorded'",
+                                                         "'replay'"]),
+    # found when the plan turns seconds into epochs, still before any scenario runs
+    ("spacing_s = 40", "spacing_s = 40\n\n[metrics]\npre_s = 0.5",
+     ["metrics.pre_s = 0.5", "whole number"]),
 ])
 def test_invalid_config_is_rejected_before_any_work(tmp_path, capsys, old, new, words):
     bad = tmp_path / "bad.toml"

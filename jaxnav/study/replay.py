@@ -51,7 +51,7 @@ from jaxnav.io.products import read_clk, read_sp3
 from jaxnav.io.rinex import read_rinex_obs
 from jaxnav.sim import drives, observations, scenario, sensors, trajectory
 from jaxnav.study.config import ConfigError
-from jaxnav.study.factory import SimFactory
+from jaxnav.study.factory import IONO_MODELS, SimFactory
 
 _LETTERS = {"gps": "G", "galileo": "E"}
 #: The [scenario] table of a replay study (``core/schema.py`` rules).
@@ -117,7 +117,7 @@ class ReplayFactory(SimFactory):
                                     key=lambda s: prepare.LETTER_TO_SYS[s]))
         self.table = {k: list(v) if isinstance(v, tuple) else v for k, v in t.items()}
         self._realize_fns = {}
-        self.iono_model_fraction = 0.3  # Klobuchar (the broadcast model of the nav file)
+        self.iono_model_fraction = IONO_MODELS["klobuchar"][1]  # the nav file's broadcast model
         self.bssd = t.get("bssd", False)
         self.lc_fix_correlated = False
         self.cfg = scenario.ScenarioConfig(
