@@ -183,3 +183,39 @@ def _elevations(geo, T):
     )
     idx = geo.slot_table.sat_index
     return jnp.where(geo.slot_table.occupied[None, :], el[:, idx], -jnp.pi / 2)
+
+
+def test_covariance_steps_make_a_long_epoch_the_same_as_short_ones(drive):
+    """A 30-s epoch without satellites, mechanized and propagated in 30 covariance steps, is
+    the same as thirty 1-s epochs without satellites: the same navigation state and P (the
+    steps compose as the epochs do). One step per 30-s epoch linearises F once, at the end
+    state, and gives another P: the case the steps exist for (recorded 30-s data)."""
+    _, geo, system = drive
+    tf = _filter(drive, "float_ppp")
+    real = _realizations(drive, jax.random.split(jax.random.PRNGKey(7), N_KEYS))
+    real = jax.tree.map(lambda x: x[0], real)
+    carry = _start(drive, tf, real)
+    head = jax.tree.map(lambda x: x[:200], real.riss_inputs)
+    carry, _ = jax.jit(lambda c, i: tight.run(tf, c, i))(carry, head)
+    # zero sensor estimates: a Gauss-Markov decay per 1-s epoch would otherwise change the
+    # mechanization of the later seconds, while the long epoch decays once, after it
+    carry = carry._replace(sensors=jax.tree.map(jnp.zeros_like, carry.sensors))
+    short = jax.tree.map(lambda x: x[200:230], real.riss_inputs)
+    short = short._replace(keep=jnp.zeros_like(short.keep))
+    want, _ = jax.jit(lambda c, i: tight.run(tf, c, i))(carry, short)
+
+    samples = jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), short.samples)  # [30, ...]
+    long_inp = jax.tree.map(lambda x: x[-1], short)._replace(samples=samples)
+    results = {}
+    for steps in (30, 1):
+        tf_long = tight.TightFilter(system, tf.cfg, tf.slots, 1.0, 30.0, covariance_steps=steps)
+        results[steps], _ = jax.jit(lambda c, i, t=tf_long: tight.epoch_step(t, c, i))(
+            carry, long_inp)
+    got = results[30]
+    scale = float(np.abs(np.asarray(want.P)).max())
+    np.testing.assert_allclose(np.asarray(got.P), np.asarray(want.P), rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(got.nav.llh, want.nav.llh, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(got.nav.azimuth, want.nav.azimuth, rtol=0, atol=1e-12)
+    pos = tf.layout.sl("pos")
+    one = np.asarray(results[1].P)[pos, pos]
+    assert np.abs(one - np.asarray(want.P)[pos, pos]).max() > 1e-3 * np.abs(one).max()

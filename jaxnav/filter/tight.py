@@ -50,6 +50,11 @@ class TightFilter(eqx.Module):
     epoch_dt_s: float
     # NHC noise [m/s] (S003: 1 m/s); None = no NHC (module docstring). InsSystem only.
     nhc_sigma_m_s: float | None = eqx.field(static=True, default=None)
+    # Covariance steps per GNSS epoch: 1 = one Phi, Qd over the epoch from its end state and
+    # mean inputs (the seeds' 1-Hz form); n > 1 mechanizes the epoch's samples in n equal
+    # pieces and re-linearises F after each (long epochs, e.g. 30-s recorded data, where the
+    # vehicle turns a corner within one epoch). The samples per epoch must divide by n.
+    covariance_steps: int = eqx.field(static=True, default=1)
 
     @property
     def layout(self) -> StateLayout:
@@ -128,9 +133,11 @@ def initial_carry(
 
 
 def _propagate_covariance(
-    tf: TightFilter, layout: StateLayout, carry: Carry, nav, mean_inputs, obs: ppp.GnssObs
+    tf: TightFilter, layout: StateLayout, carry: Carry, nav, mean_inputs, obs: ppp.GnssObs,
+    dt_s: Float[ArrayLike, ""] | None = None,
 ) -> Float[Array, "n n"]:
-    """P <- Phi P Phi^T + Qd for the joint navigation + GNSS error model over one epoch.
+    """P <- Phi P Phi^T + Qd for the joint navigation + GNSS error model over ``dt_s`` (default:
+    the epoch).
 
     The two blocks are independent (no F or noise couples them) and discretised apart: the
     system's by ``ekf.discretize`` with its squarings (RISS16's Gauss-Markov velocity terms have
@@ -138,18 +145,38 @@ def _propagate_covariance(
     third-order series alone (nilpotent but for the slow Gauss-Markov blocks, |F dt| << 1).
     ``obs``: the epoch's observations, for process noise that scales with a model (sf_code's
     ionosphere residual)."""
+    dt_s = tf.epoch_dt_s if dt_s is None else dt_s
     n_sys = tf.system.layout.size
     n = layout.size
     F_sys, G_sys, Qc_sys = tf.system.dynamics(nav, mean_inputs, carry.sensors)
     F_g, q_g = ppp.gnss_dynamics(tf.cfg, layout, carry.elevation, obs,
                                  skip=tf.system.layout.names)
-    Phi_s, Qd_s = ekf.discretize(F_sys, G_sys, Qc_sys, tf.epoch_dt_s)
+    Phi_s, Qd_s = ekf.discretize(F_sys, G_sys, Qc_sys, dt_s)
     Phi_g, Qd_g = ekf.discretize(F_g[n_sys:, n_sys:], jnp.eye(n - n_sys), jnp.diag(q_g[n_sys:]),
-                                 tf.epoch_dt_s, squarings=0)
+                                 dt_s, squarings=0)
     Phi = jax.scipy.linalg.block_diag(Phi_s, Phi_g)
     Qd = jax.scipy.linalg.block_diag(Qd_s, Qd_g)
     _, P = ekf.predict(jnp.zeros(n), carry.P, Phi, Qd)
     return P
+
+
+def _mechanize_and_propagate(tf: TightFilter, layout: StateLayout, carry: Carry,
+                             inp: EpochInput):
+    """The epoch's mechanization and P <- Phi P Phi^T + Qd, in ``tf.covariance_steps`` pieces
+    (P_{j+1} = Phi_j P_j Phi_j^T + Qd_j, F_j at the state mechanized to the end of piece j)."""
+    n = tf.covariance_steps
+    if n == 1:
+        nav, mean = tf.system.propagate(carry.nav, carry.sensors, inp.samples, tf.imu_dt_s)
+        return nav, mean, _propagate_covariance(tf, layout, carry, nav, mean, inp.obs)
+    pieces = jax.tree.map(lambda x: x.reshape(n, x.shape[0] // n, *x.shape[1:]), inp.samples)
+
+    def piece(c: Carry, samples):
+        nav, mean = tf.system.propagate(c.nav, c.sensors, samples, tf.imu_dt_s)
+        P = _propagate_covariance(tf, layout, c, nav, mean, inp.obs, tf.epoch_dt_s / n)
+        return c._replace(nav=nav, P=P), mean
+
+    c, means = jax.lax.scan(piece, carry, pieces)
+    return c.nav, jax.tree.map(lambda x: x[-1], means), c.P
 
 
 def _slot_usable(
@@ -284,8 +311,7 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
     """One GNSS epoch: mechanize, propagate P, reset per-slot states, update, feed back."""
     layout = tf.layout
     cfg = tf.cfg
-    nav, mean_inputs = tf.system.propagate(carry.nav, carry.sensors, inp.samples, tf.imu_dt_s)
-    P = _propagate_covariance(tf, layout, carry, nav, mean_inputs, inp.obs)
+    nav, mean_inputs, P = _mechanize_and_propagate(tf, layout, carry, inp)
     # x_hat <- Phi x_hat for the sensor estimates: Gauss-Markov shares decay (issue 16, defect 4)
     carry = carry._replace(sensors=tf.system.predict_sensors(carry.sensors, tf.epoch_dt_s))
     gnss_est = ppp.gnss_nominal_predict(cfg, layout, carry.gnss_est, tf.epoch_dt_s)

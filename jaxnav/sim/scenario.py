@@ -48,6 +48,8 @@ class ScenarioConfig(eqx.Module):
     # GF / MW detector of real data (gnss/slips.py); "oracle": the simulator's true arc starts
     # (isolates other effects from detection misses and false alarms).
     slip_flags: str = eqx.field(static=True, default="detector")
+    # GPS time of the scenario's t = 0 (orbits, ionosphere, day of year)
+    t0_gps_s: float = eqx.field(static=True, default=constellation.DEFAULT_T0_GPS_S)
 
 
 class Geometry(NamedTuple):
@@ -84,11 +86,14 @@ def antenna_track(truth_ep: trajectory.Truth, lever_b):
     return jax.vmap(one)(truth_ep.llh, truth_ep.vel_enu, truth_ep.q_b_l, truth_ep.w_ib_b)
 
 
-def build_geometry(cfg: ScenarioConfig, profile: trajectory.Profile | None = None) -> Geometry:
+def build_geometry(
+    cfg: ScenarioConfig, profile: trajectory.Profile | None = None, orbits=None
+) -> Geometry:
     """Truth trajectory, antenna track and the fixed satellite slots of a drive.
 
     ``profile``: a purpose-built trajectory (``trajectory.compile_profile``) instead of the
-    seeded random drive of ``cfg.drive_style`` / ``cfg.drive_seed``.
+    seeded random drive of ``cfg.drive_style`` / ``cfg.drive_seed``; ``orbits``: another orbit
+    source (e.g. a broadcast ephemeris) instead of the nominal constellations of ``cfg.systems``.
     """
     if profile is None and cfg.drive_style == "airborne":
         profile = drives.random_airborne(cfg.drive_seed, cfg.duration_s)
@@ -100,18 +105,20 @@ def build_geometry(cfg: ScenarioConfig, profile: trajectory.Profile | None = Non
     truth_ep = trajectory.truth_at_epochs(truth, cfg.epoch_interval_s)
     lever = jnp.asarray(cfg.lever_b_m, jnp.float64)
     pos, vel = antenna_track(truth_ep, lever)
-    orbits = constellation.nominal_constellation(cfg.systems)
+    if orbits is None:
+        orbits = constellation.nominal_constellation(cfg.systems)
     slots_per = tuple(n if s in cfg.systems else 0 for s, n in enumerate(cfg.slots_per_system))
     table = constellation.build_slots(
         orbits,
         truth_ep.time_s,
         pos,
+        cfg.t0_gps_s,
         mask_rad=cfg.obs_params.elevation_mask_rad,
         slots_per_system=slots_per,
     )
     freq = signals.slot_frequencies_hz(table)
     slots = ppp.SlotInfo(table.system, freq[:, 0], freq[:, 1])
-    doy = gpstime.day_of_year(constellation.DEFAULT_T0_GPS_S)
+    doy = gpstime.day_of_year(cfg.t0_gps_s)
     return Geometry(truth, truth_ep, pos, vel, table, slots, orbits, float(doy))
 
 
@@ -200,6 +207,7 @@ def realize(
         geo.orbits,
         geo.slot_table,
         cfg.obs_params,
+        cfg.t0_gps_s,
         with_truth=False,
     )
     band0 = signals.CODE_C1 if single_frequency else signals.CODE_P1

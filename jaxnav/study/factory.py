@@ -167,7 +167,8 @@ class SimFactory:
     def _sky(self):
         """Elevation, azimuth [T, S] of the slots along the true antenna track (epochs 1..)."""
         g = self.geo
-        el, az = constellation.elevations(g.orbits, g.truth_ep.time_s[1:], g.ant_pos_ecef[1:])
+        el, az = constellation.elevations(g.orbits, g.truth_ep.time_s[1:], g.ant_pos_ecef[1:],
+                                          self.cfg.t0_gps_s)
         idx = g.slot_table.sat_index
         occ = g.slot_table.occupied[None, :]
         return jnp.where(occ, el[:, idx], -jnp.pi / 2), jnp.where(occ, az[:, idx], 0.0)
@@ -190,7 +191,8 @@ class SimFactory:
                 sensors.odometer(cfg.odometer),
                 cfg.lever_b_m,
                 1.0 / cfg.riss_rate_hz,
-                cfg.epoch_interval_s,
+                # RISS16 reads the interval of one covariance step (its odometer-scale rate)
+                cfg.epoch_interval_s / self._covariance_steps(name),
                 layout=RISS16 if name == "riss" else RISS9,
             )
         if name in LC_SYSTEMS:
@@ -243,8 +245,13 @@ class SimFactory:
                                      cfg.epoch_interval_s)
         nhc = NHC_SIGMA_M_S if system_name in TC_NHC_SYSTEMS else None
         return tight.TightFilter(
-            system, pcfg, geo.slots, 1.0 / rate, cfg.epoch_interval_s, nhc_sigma_m_s=nhc
+            system, pcfg, geo.slots, 1.0 / rate, cfg.epoch_interval_s, nhc_sigma_m_s=nhc,
+            covariance_steps=self._covariance_steps(system_name),
         )
+
+    def _covariance_steps(self, system_name: str) -> int:
+        """``TightFilter.covariance_steps`` of a system: one per epoch on the 1-Hz drives."""
+        return 1
 
     def start(self, tf, system_name: str, real: scenario.Realization):
         """Initial carry: truth-initialised navigation state, standstill sensor calibration

@@ -49,9 +49,9 @@ from jaxnav.io import prepare
 from jaxnav.io.nav import read_broadcast_ephemeris
 from jaxnav.io.products import read_clk, read_sp3
 from jaxnav.io.rinex import read_rinex_obs
-from jaxnav.sim import drives, observations, scenario, sensors, trajectory
+from jaxnav.sim import constellation, drives, observations, scenario, sensors, trajectory
 from jaxnav.study.config import ConfigError
-from jaxnav.study.factory import IONO_MODELS, SimFactory
+from jaxnav.study.factory import IONO_MODELS, TC_NHC_SYSTEMS, SimFactory
 
 _LETTERS = {"gps": "G", "galileo": "E"}
 #: The [scenario] table of a replay study (``core/schema.py`` rules).
@@ -84,7 +84,36 @@ def _fail(key, value, expected):
     schema.fail(f"scenario.{key}", value, expected, ConfigError)
 
 
-class ReplayFactory(SimFactory):
+class _RecordedFilter:
+    """The filters of a replay study: the recorded-data stochastic model, and covariance steps
+    of one second inside the 30-s epochs. Shared by the replay and its simulated twin, so the
+    two differ only in the GNSS errors."""
+
+    def _ppp_config(self, mode: str) -> ppp.PppConfig:
+        return super()._ppp_config(mode).for_recorded_data()
+
+    def _covariance_steps(self, system_name: str) -> int:
+        """One covariance step per second for RISS16 and the tightly coupled INS: a 30-s epoch
+        holds whole corners of the circuit, which one F per epoch cannot follow (RISS16 with
+        one step diverged: docs/validation.md). RISS9's odometer noise is defined per epoch
+        and the loose and GNSS-only systems step on their own: one step."""
+        if system_name == "riss" or system_name in ("ins15", "ins21", *TC_NHC_SYSTEMS):
+            return max(1, round(self.cfg.epoch_interval_s))
+        return 1
+
+    def _system(self, name: str):
+        """As on a simulated drive, but RISS16's own receiver-clock states get the recorded
+        data's clock PSD (``PppConfig.for_recorded_data``: the single-point clock removed, a
+        metre-level residual free from epoch to epoch)."""
+        system = super()._system(name)
+        if name == "riss":
+            params = dataclasses.replace(system.params,
+                                         clock_bias_psd_m2_s=ppp.RECORDED_CLOCK_PSD_M2_S)
+            system = dataclasses.replace(system, params=params)
+        return system
+
+
+class ReplayFactory(_RecordedFilter, SimFactory):
     """Sweep problems on a station's real observations moved onto a simulated circuit."""
 
     def __init__(self, table: dict, base_dir: str | os.PathLike | None = None):
@@ -196,12 +225,15 @@ class ReplayFactory(SimFactory):
                             doppler_ok=obs.doppler_ok & have[None, :])
 
     # -- the factory contract ---------------------------------------------------------------------
+    def profile(self) -> trajectory.Profile:
+        """The circuit around the station (``sim.drives.circuit_drive`` of ``drive_seed``)."""
+        llh0 = tuple(float(v) for v in geodesy.ecef_to_llh(jnp.asarray(self.station_ecef)))
+        return drives.circuit_drive(self.cfg.drive_seed, self.cfg.duration_s, llh0=llh0)
+
     @functools.cached_property
     def geo(self) -> scenario.Geometry:
         cfg = self.cfg
-        llh0 = tuple(float(v) for v in geodesy.ecef_to_llh(jnp.asarray(self.station_ecef)))
-        profile = drives.circuit_drive(cfg.drive_seed, cfg.duration_s, llh0=llh0)
-        truth = trajectory.generate_truth(profile, cfg.imu_rate_hz, cfg.duration_s)
+        truth = trajectory.generate_truth(self.profile(), cfg.imu_rate_hz, cfg.duration_s)
         truth_ep = trajectory.truth_at_epochs(truth, cfg.epoch_interval_s)
         pos, vel = scenario.antenna_track(truth_ep, jnp.asarray(cfg.lever_b_m, jnp.float64))
         far = float(np.max(np.linalg.norm(np.asarray(pos) - self.station_ecef, axis=1)))
@@ -219,20 +251,6 @@ class ReplayFactory(SimFactory):
         obs = self.station_obs(False)
         sat = jax.tree.map(lambda x: x[1:], obs.sat)
         return replay.sky(sat, self.geo.ant_pos_ecef[1:])
-
-    def _ppp_config(self, mode: str) -> ppp.PppConfig:
-        return super()._ppp_config(mode).for_recorded_data()
-
-    def _system(self, name: str):
-        """As on a simulated drive, but RISS16's own receiver-clock states get the recorded
-        data's clock PSD (``PppConfig.for_recorded_data``: the single-point clock removed, a
-        metre-level residual free from epoch to epoch)."""
-        system = super()._system(name)
-        if name == "riss":
-            params = dataclasses.replace(system.params,
-                                         clock_bias_psd_m2_s=ppp.RECORDED_CLOCK_PSD_M2_S)
-            system = dataclasses.replace(system, params=params)
-        return system
 
     def _realization(self, seed: int, single_frequency: bool, imu_grade: str):
         """The replayed observations with the IMU and odometer of ``seed`` (the same keys as
@@ -256,3 +274,33 @@ class ReplayFactory(SimFactory):
 
 def _with_grade(cfg: scenario.ScenarioConfig, imu_grade: str) -> scenario.ScenarioConfig:
     return dataclasses.replace(cfg, imu_grade=imu_grade)
+
+
+class SimulatedTwin(_RecordedFilter, SimFactory):
+    """The replay's circuit, IMU noise, satellites (their broadcast orbits), epochs and filters,
+    with the simulator's GNSS errors instead of the station's: what the simulator predicts for
+    the same study (``experiments/real_vs_simulated_errors.py``)."""
+
+    def __init__(self, replay: ReplayFactory):
+        keep = ("drive_seed", "imu_grade", "ins_grade", "odometer", "bssd", "constellations")
+        super().__init__({k: v for k, v in replay.table.items() if k in keep})
+        self.replay = replay
+        self.table = {"twin_of": replay.table}
+        # as many slots per constellation as the window has satellites above the mask
+        _, products = replay._recorded
+        cfg = dataclasses.replace(
+            self.cfg, drive_style="circuit", duration_s=replay.cfg.duration_s,
+            epoch_interval_s=replay.cfg.epoch_interval_s, t0_gps_s=gpstime.gps_seconds(replay.t0),
+            lever_b_m=replay.cfg.lever_b_m)
+        t = replay.geo.truth_ep
+        el, _ = constellation.elevations(products.nav, t.time_s, replay.geo.ant_pos_ecef,
+                                         cfg.t0_gps_s)
+        seen = np.asarray(constellation.visible(el, cfg.obs_params.elevation_mask_rad).any(0))
+        system = np.asarray(products.nav.system)
+        counts = tuple(int(np.sum(seen & (system == s))) for s in range(len(cfg.slots_per_system)))
+        self.cfg = dataclasses.replace(cfg, slots_per_system=counts)
+
+    @functools.cached_property
+    def geo(self) -> scenario.Geometry:
+        _, products = self.replay._recorded
+        return scenario.build_geometry(self.cfg, self.replay.profile(), orbits=products.nav)
