@@ -316,6 +316,11 @@ def test_schedule_round_trip(tmp_path):
         ("id,start_s,length_s\na,nan,5\n", r"bad\.csv:2: start_s: expected a finite number"),
         ("id,start_s,length_s\na,1,5,9\n", r"bad\.csv:2: expected 3 fields"),
         ("id,start_s,length_s\n,1,5\n", r"bad\.csv:2: id: expected a non-empty id"),
+        ("id,start_s,length_s,satellites_kept\na,1,5\n", r"bad\.csv:2: expected 4 fields"),
+        ("id,start_s,length_s,satellites_kept\na,1,5,-1\n",
+         r"bad\.csv:2: satellites_kept: expected a whole number >= 0 of satellites, got '-1'"),
+        ("id,start_s,length_s,satellites_kept\na,1,5,1.5\n", r"bad\.csv:2: satellites_kept"),
+        ("id,start_s,length_s,kept\n", r"bad\.csv:1: expected the header line"),
         (
             "id,start_s,length_s\n# comment\na,1,5\n\nb,100,5\na,200,5\n",
             r"bad\.csv:6: id: expected unique ids, 'a' already used on line 3",
@@ -327,6 +332,15 @@ def test_schedule_bad_files(tmp_path, text, pattern):
     path.write_text(text)
     with pytest.raises(o.ScheduleError, match=pattern):
         o.read_schedule(path)
+
+
+def test_schedule_satellites_kept_column(tmp_path):
+    path = tmp_path / "kept.csv"
+    path.write_text("id,start_s,length_s,satellites_kept\nz,10,15,0\nt,40,15,3\n")
+    s = o.read_schedule(path)
+    np.testing.assert_array_equal(s.satellites_kept, [0, 3])
+    path.write_text("id,start_s,length_s\nz,10,15\n")
+    assert o.read_schedule(path).satellites_kept is None  # complete outages
 
 
 def test_schedule_overlap_and_epochs(tmp_path):

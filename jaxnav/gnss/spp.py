@@ -127,3 +127,42 @@ def fill_positions(pos, ok):
     before = good[np.clip(np.searchsorted(good, idx) - 1, 0, good.size - 1)]
     pick = np.where(np.abs(before - idx) < np.abs(nearest - idx), before, nearest)
     return np.where(ok[:, None], pos, pos[pick])
+
+
+class DopplerVelocity(NamedTuple):
+    vel_ecef: jnp.ndarray  # [T, 3] receiver velocity [m/s]
+    clock_rate_m_s: jnp.ndarray  # [T] receiver clock drift c dt_r' [m/s]
+    ok: jnp.ndarray  # [T] bool: at least 5 Doppler rows above the mask, post-fit RMS < 1 m/s
+    rms_m_s: jnp.ndarray  # [T] post-fit residual RMS
+
+
+@jax.jit
+def doppler_velocity(range_rate_m_s, sat_pos, sat_vel, sat_clock_rate_m_s, rx_pos, usable,
+                     mask_rad=SPP_MASK_RAD) -> DopplerVelocity:
+    """Epoch-wise least-squares receiver velocity from the range rates -lambda D ([T, S]).
+
+    Model: rr = u . (v^s - v_r) + c dt_r' - c dt^s', u the unit vector receiver -> satellite at
+    the (SPP) position ``rx_pos`` [T, 3] and v^s rotated by the Earth's rotation during the
+    travel time (``models.geometry``); rows weighted by S001 eq 11's elevation law.
+    """
+
+    def one(rr, sp, sv, scr, x, use):
+        sat = models.SatEpoch(sp, sv, jnp.zeros_like(scr), scr)
+        geo = models.geometry(x, jnp.zeros(3), sat)
+        llh = geodesy.ecef_to_llh(x)
+        el, _ = models.elevation_azimuth(geo.los_ecef, geodesy.C_l_e(llh[0], llh[1]).T)
+        ok = use & (el >= mask_rad) & jnp.isfinite(rr)
+        u = geo.los_ecef  # with the satellite velocity rotated as the filter's model does
+        y = jnp.where(ok, rr + scr - jnp.sum(u * geo.sat_vel_ecef, axis=1), 0.0)
+        H = jnp.concatenate([-u, jnp.ones((u.shape[0], 1))], axis=1)
+        w = jnp.where(ok, 1.0 / models.elevation_sigma(1.0, el) ** 2, 0.0)
+        N = H.T @ (H * w[:, None]) + 1e-9 * jnp.eye(4)
+        sol = jnp.linalg.solve(N, H.T @ (w * y))
+        res = jnp.where(ok, y - H @ sol, 0.0)
+        n = jnp.sum(ok)
+        rms = jnp.sqrt(jnp.sum(res**2) / jnp.maximum(n - 4, 1))
+        return sol[:3], sol[3], (n >= 5) & (rms < 1.0), rms
+
+    out = jax.vmap(one)(jnp.asarray(range_rate_m_s), sat_pos, sat_vel, sat_clock_rate_m_s,
+                        jnp.asarray(rx_pos), jnp.asarray(usable))
+    return DopplerVelocity(*out)

@@ -23,7 +23,7 @@ from jaxnav.io.imu import (
     read_timetag,
     sensor_to_body_dcm,
 )
-from jaxnav.io.nav import read_broadcast_ephemeris, read_rinex_nav
+from jaxnav.io.nav import ephemeris_from_records, read_broadcast_ephemeris, read_rinex_nav
 from jaxnav.io.pos import Q_OUTAGE, PosSolution, covariance_enu, read_pos, write_pos
 from jaxnav.io.products import (
     ClockInterp,
@@ -52,6 +52,8 @@ from jaxnav.io.rinex import (
     SystemObs,
     read_rinex_obs,
 )
+from jaxnav.io.ubx import read_ubx
+from jaxnav.io.ubx_nav import ephemeris_from_sfrbx
 
 __all__ = [
     "GPS_EPOCH",
@@ -88,6 +90,9 @@ __all__ = [
     "read_ionex",
     "read_pos",
     "read_broadcast_ephemeris",
+    "ephemeris_from_records",
+    "read_ubx",
+    "ephemeris_from_sfrbx",
     "read_rinex_nav",
     "read_rinex_obs",
     "read_sp3",

@@ -2,7 +2,9 @@
 
 - :func:`read_rinex_nav`: an ``xr.Dataset`` (dims time, sv) with georinex's variable names;
 - :func:`read_broadcast_ephemeris`: the ``gnss.ephemeris.BroadcastEphemeris`` the GNSS models
-  evaluate (IS-GPS-200 / GLONASS ICD), healthy records only.
+  evaluate (IS-GPS-200 / GLONASS ICD), healthy records only;
+- :func:`ephemeris_from_records`: the same from per-satellite record dicts with georinex's field
+  names (what ``read_broadcast_ephemeris`` collects, and what ``io/ubx_nav.py`` decodes).
 
 Both read the file through ``io/rinex.py`` (plain, gzip/Z/bz2/zip or Hatanaka; structural header
 checks; ``InputError`` naming the file) and zero-fill blank "spare" fields before georinex:
@@ -180,7 +182,49 @@ def read_broadcast_ephemeris(
     if not recs:
         raise ValueError(f"{path}: no GPS/GLONASS/Galileo navigation records for systems {systems}")
 
+    alpha, beta = _klobuchar_from_header(nav.attrs)
+    return ephemeris_from_records(
+        recs,
+        t_ref_gps_s=t_ref_gps_s,
+        leap_seconds=leap,
+        iono_alpha=alpha,
+        iono_beta=beta,
+        galileo_source=galileo_source,
+    )
+
+
+def ephemeris_from_records(
+    recs: dict[str, list[dict]],
+    *,
+    t_ref_gps_s: float | None = None,
+    leap_seconds: float = GPS_UTC_LEAP_S,
+    iono_alpha=None,
+    iono_beta=None,
+    galileo_source: str = "fnav",
+) -> BroadcastEphemeris:
+    """Per-satellite navigation records -> ``BroadcastEphemeris`` (IS-GPS-200 / GLONASS ICD).
+
+    ``recs`` maps a RINEX satellite name ("G05", "R12", "E11") to its records, each a dict with
+    georinex's field names of RINEX 3.04 tables A6-A10 (``sqrtA``, ``Eccentricity``, ``Io``,
+    ``IDOT``, ``Omega0``, ``OmegaDot``, ``omega``, ``M0``, ``DeltaN``, ``Cuc`` ... ``Cis``,
+    ``SVclockBias/Drift/DriftRate``, ``TGD`` / ``BGDe5a``, ``GPSWeek`` / ``GALWeek``, ``Toe``,
+    ``health``, ``DataSrc``; GLONASS ``X`` ... ``dZ2``, ``SVrelFreqBias``, ``FreqNum``) plus
+    ``_toc``: the record's epoch (toc; GLONASS tb in UTC) in GPS seconds. Angles in rad, times
+    in s (RINEX units). ``galileo_source`` as in :func:`read_broadcast_ephemeris`;
+    ``leap_seconds`` = GPS - UTC for GLONASS epochs; ``iono_alpha/beta``: Klobuchar
+    coefficients [4] (default ``corrections.KLOBUCHAR_*_DEFAULT``); ``t_ref_gps_s``: the time
+    axis origin, default 00:00 GPS of the first record's day. Only healthy records (health ==
+    0) with a finite orbit and clock are marked valid. The input is not modified.
+    """
+    if galileo_source not in ("fnav", "inav"):
+        raise ValueError(f"galileo_source must be 'fnav' or 'inav', got {galileo_source!r}")
     letter_to_sys = {"G": SYS_GPS, "R": SYS_GLO, "E": SYS_GAL}
+    recs = {s: list(r) for s, r in recs.items() if r}
+    unknown = sorted(s for s in recs if s[:1] not in letter_to_sys)
+    if unknown:
+        raise ValueError(f"only GPS/GLONASS/Galileo records are supported, got {unknown}")
+    if not recs:
+        raise ValueError("no navigation records")
     sats = sorted(recs, key=lambda s: (letter_to_sys[s[0]], int(s[1:])))
     want_bit = 2 if galileo_source == "fnav" else 1 | 4  # DataSrc bits (RINEX 3.05 table A8)
     for s in sats:
@@ -220,7 +264,7 @@ def read_broadcast_ephemeris(
         for j, r in enumerate(recs[s]):
             healthy = float(r.get("health", 0.0)) == 0.0
             if s[0] == "R":
-                tb = r["_toc"] + leap - t_ref_gps_s
+                tb = r["_toc"] + leap_seconds - t_ref_gps_s
                 gf["tb_s"][i, j] = tb
                 gf["clock_bias_s"][i, j] = r["SVclockBias"]
                 gf["rel_freq_bias"][i, j] = r["SVrelFreqBias"]
@@ -266,7 +310,10 @@ def read_broadcast_ephemeris(
                 kf[key][i, j] = v if np.isfinite(v) or key == "tgd_s" else kf[key][i, j]
             kf["valid"][i, j] = healthy and finite
 
-    alpha, beta = _klobuchar_from_header(nav.attrs)
+    if iono_alpha is None:
+        iono_alpha = corrections.KLOBUCHAR_ALPHA_DEFAULT
+    if iono_beta is None:
+        iono_beta = corrections.KLOBUCHAR_BETA_DEFAULT
     return BroadcastEphemeris(
         system=jnp.asarray(system),
         prn=jnp.asarray(prn),
@@ -282,8 +329,8 @@ def read_broadcast_ephemeris(
             rel_freq_bias=jnp.asarray(gf["rel_freq_bias"]),
         ),
         t_ref_gps_s=jnp.asarray(float(t_ref_gps_s)),
-        iono_alpha=jnp.asarray(alpha),
-        iono_beta=jnp.asarray(beta),
+        iono_alpha=jnp.asarray(np.asarray(iono_alpha, dtype=np.float64)),
+        iono_beta=jnp.asarray(np.asarray(iono_beta, dtype=np.float64)),
     )
 
 

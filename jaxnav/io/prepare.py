@@ -160,6 +160,10 @@ class PrepareOptions:
     remove_spp_clock: bool = True  # subtract the SPP receiver clock from code and phase
     p1c1_m: dict[str, float] | None = None  # satellite P1-C1 [m] (io.read_code_dcb or measured)
     ignore_p1c1: bool = False  # single frequency: use C/A as P1 (up to ~1 m of bias, knowingly)
+    # (code f1, code f2, phase f1, phase f2, Doppler f1) per constellation letter; None: the
+    # tables above. f2 is the constellation's second carrier of gnss.signals (GPS L2, Galileo
+    # E5a): e.g. a u-blox receiver's GPS L2C is ("C1C", "C2L", "L1C", "L2L", "D1C").
+    signals: dict[str, tuple[str | None, ...]] | None = None
 
     def __post_init__(self):
         if self.freq not in ("single", "dual"):
@@ -242,7 +246,7 @@ class _SlotArrays(NamedTuple):
 
 
 def _slot_arrays(obs: RinexObs, products: Products, opt: PrepareOptions) -> _SlotArrays:
-    table = DUAL_SIGNALS if opt.freq == "dual" else SINGLE_SIGNALS
+    table = {**(DUAL_SIGNALS if opt.freq == "dual" else SINGLE_SIGNALS), **(opt.signals or {})}
     T = obs.time_gps_s.size
     cols = {k: [] for k in ("code1", "code2", "phase1", "phase2", "dopp", "lli")}
     sv_list, sys_list, f_list = [], [], []
@@ -251,6 +255,10 @@ def _slot_arrays(obs: RinexObs, products: Products, opt: PrepareOptions) -> _Slo
             raise ValueError(f"constellation {letter} was not read from the observation file")
         so = obs.systems[letter]
         c1, c2, l1, l2, d1 = table[letter]
+        missing = [c for c in (c1, c2 if opt.freq == "dual" else None) if c and c not in so.obs]
+        if missing:
+            raise ValueError(f"constellation {letter}: no {'/'.join(missing)} observations "
+                             f"(the file has {sorted(so.obs)})")
         sys_id = LETTER_TO_SYS[letter]
         for k, sv in enumerate(so.sv):
             code1 = so.obs[c1][:, k]

@@ -370,6 +370,8 @@ def event_starts(
 # Schedule files: id,start_s,length_s
 # ----------------------------------------------------------------------------------------------
 SCHEDULE_HEADER = ("id", "start_s", "length_s")
+#: The optional fourth column: satellites kept during the outage (0-3 or more; 0 = complete).
+KEPT_COLUMN = "satellites_kept"
 
 
 class ScheduleError(ValueError):
@@ -380,6 +382,8 @@ class Schedule(NamedTuple):
     id: tuple[str, ...]
     start_s: np.ndarray  # [n] start relative to the first epoch [s]
     length_s: np.ndarray  # [n] [s]
+    satellites_kept: np.ndarray | None = None  # [n] int (0 = complete outage); None: column
+    # absent, every outage complete
 
 
 def _number(path, line_no, field, text, positive: bool):
@@ -399,33 +403,36 @@ def _number(path, line_no, field, text, positive: bool):
 
 
 def read_schedule(path: str | os.PathLike, *, allow_overlap: bool = True) -> Schedule:
-    """Read an ``id,start_s,length_s`` CSV (header line first; blank and ``#`` lines ignored).
+    """Read an ``id,start_s,length_s[,satellites_kept]`` CSV (header line first; blank and
+    ``#`` lines ignored); the optional column gives the satellites kept during each outage.
 
     Rejects, naming file and line: a wrong header, a wrong number of fields, an empty or
-    duplicate id, a non-numeric / non-finite / negative start, a length <= 0, and (with
-    ``allow_overlap=False``, for outages sharing one run) overlapping windows. Independent
-    scenarios of a sweep may overlap in time, hence the default.
+    duplicate id, a non-numeric / non-finite / negative start, a length <= 0, a kept count
+    that is no whole number >= 0, and (with ``allow_overlap=False``, for outages sharing one
+    run) overlapping windows. Independent scenarios of a sweep may overlap in time, hence the
+    default.
     """
     path = Path(path)
-    ids, starts, lengths, lines = [], [], [], []
-    header_seen = False
+    ids, starts, lengths, kept, lines = [], [], [], [], []
+    header = None
     with path.open(newline="") as f:
         for line_no, row in enumerate(csv.reader(f), start=1):
             if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
                 continue
             fields = [c.strip() for c in row]
-            if not header_seen:
-                if tuple(fields) != SCHEDULE_HEADER:
+            if header is None:
+                if tuple(fields) not in (SCHEDULE_HEADER, (*SCHEDULE_HEADER, KEPT_COLUMN)):
                     raise ScheduleError(
                         f"{path}:{line_no}: expected the header line "
-                        f"{','.join(SCHEDULE_HEADER)!r}, got {','.join(fields)!r}"
+                        f"{','.join(SCHEDULE_HEADER)!r} (optionally with "
+                        f"',{KEPT_COLUMN}'), got {','.join(fields)!r}"
                     )
-                header_seen = True
+                header = tuple(fields)
                 continue
-            if len(fields) != 3:
+            if len(fields) != len(header):
                 raise ScheduleError(
-                    f"{path}:{line_no}: expected 3 fields (id,start_s,length_s), got "
-                    f"{len(fields)}: {','.join(fields)!r}"
+                    f"{path}:{line_no}: expected {len(header)} fields ({','.join(header)}), "
+                    f"got {len(fields)}: {','.join(fields)!r}"
                 )
             oid = fields[0]
             if not oid:
@@ -439,8 +446,13 @@ def read_schedule(path: str | os.PathLike, *, allow_overlap: bool = True) -> Sch
             ids.append(oid)
             starts.append(_number(path, line_no, "start_s", fields[1], positive=False))
             lengths.append(_number(path, line_no, "length_s", fields[2], positive=True))
+            if len(header) == 4:
+                if not fields[3].isdigit():
+                    raise ScheduleError(f"{path}:{line_no}: {KEPT_COLUMN}: expected a whole "
+                                        f"number >= 0 of satellites, got {fields[3]!r}")
+                kept.append(int(fields[3]))
             lines.append(line_no)
-    if not header_seen:
+    if header is None:
         raise ScheduleError(
             f"{path}:1: expected the header line {','.join(SCHEDULE_HEADER)!r}, got an empty file"
         )
@@ -453,7 +465,8 @@ def read_schedule(path: str | os.PathLike, *, allow_overlap: bool = True) -> Sch
                     f"{starts[j]} s before {ids[i]!r} (line {lines[i]}) ends at "
                     f"{starts[i] + lengths[i]} s"
                 )
-    return Schedule(tuple(ids), np.asarray(starts, float), np.asarray(lengths, float))
+    return Schedule(tuple(ids), np.asarray(starts, float), np.asarray(lengths, float),
+                    np.asarray(kept, np.int64) if len(header) == 4 else None)
 
 
 def write_schedule(
