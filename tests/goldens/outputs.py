@@ -1,12 +1,20 @@
 """Golden outputs of whole runs: experiments' quick forms, the ESBC runs, the car drive, sweeps.
 
 ``check(name, values)`` compares a run's numbers with ``outputs/<name>.npz``: every array to
-1e-9 of its own largest magnitude (the issue-15 criterion), integer and boolean arrays exactly,
-NaN where NaN was. The numbers come from the files a run writes (``numbers_in``: each
-``results.nc``'s data variables, every ``*.json`` number, every ``*.npz`` array) or from the
-test's own arrays. ``JAXNAV_RECORD_GOLDENS=1 python -m pytest ...`` writes the files instead
-(and says so); do that only for a change meant to alter the numbers, and give the size of the
-change and its reason in the commit.
+1e-6 of its own largest magnitude, integer and boolean arrays exactly, NaN where NaN was.
+Tolerance: issue 15 asked for 1e-9, which holds on the machine that recorded the files but not
+across CPUs: XLA's CPU code (vector width, FMA contraction, reduction order) rounds differently
+on another processor, and on an AMD EPYC host (2026-12-04) every float array of the recorded
+runs differed by up to 2.5e-7 of its scale (ESBC NIS; the rest 1e-9 to 5e-8) with every integer
+(satellites used, gating decisions) and every position (1 um) unchanged. CI runs on whichever
+machine a session gets, so 1e-6 (4x that spread) keeps the check machine-independent while a
+change of a model, a noise figure or a gate still moves the outputs by far more.
+
+The numbers come from the files a run writes (``numbers_in``: each ``results.nc``'s data
+variables, every ``*.json`` number, every ``*.npz`` array) or from the test's own arrays.
+``JAXNAV_RECORD_GOLDENS=1 python -m pytest ...`` writes the files instead (and says so); do
+that only for a change meant to alter the numbers, and give the size of the change and its
+reason in the commit.
 """
 
 from __future__ import annotations
@@ -21,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 DIR = Path(__file__).with_name("outputs")
-RTOL = 1e-9
+RTOL = 1e-6  # module docstring: cross-CPU rounding reaches 2.5e-7
 RECORD = os.environ.get("JAXNAV_RECORD_GOLDENS") == "1"
 
 
