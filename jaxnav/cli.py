@@ -1,4 +1,4 @@
-"""``jaxnav`` command line: demo, sweep, ppp, lc, list."""
+"""``jaxnav`` command line: demo, sweep, ppp, lc, ins, list."""
 
 from __future__ import annotations
 
@@ -132,13 +132,15 @@ def main(argv=None) -> int:
     for name, text in (
         ("ppp", "post-processed PPP on RINEX data (see `jaxnav ppp --help`)"),
         ("lc", "loosely coupled INS on a recorded IMU + GNSS drive (see `jaxnav lc --help`)"),
+        ("ins", "GNSS/INS on a recorded IMU log, loose (.pos) or tight (raw UBX observations) "
+                "(see `jaxnav ins --help`)"),
     ):
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=_delegate(name))
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv and argv[0] in ("ppp", "lc"):  # their own parsers take every remaining argument
+    if argv and argv[0] in ("ppp", "lc", "ins"):  # their own parsers take every remaining argument
         return importlib.import_module(f"jaxnav.apps.{argv[0]}").main(argv[1:])
     args = parser.parse_args(argv)
     return args.func(args)

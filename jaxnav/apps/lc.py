@@ -72,6 +72,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
+from jaxnav.apps import run_command
 from jaxnav.apps.car_config import (  # noqa: F401  (re-exported: the command's public names)
     SWEEP_MODES,
     UG_M_S2,
@@ -111,7 +112,6 @@ from jaxnav.apps.lc_sweep import (  # noqa: F401
     study_config,
 )
 from jaxnav.io import pos as pos_io
-from jaxnav.io.errors import InputError
 from jaxnav.study import metrics as mt
 from jaxnav.study import outages as ot
 
@@ -159,19 +159,28 @@ def _fingerprint(args, cfg: CarConfig) -> str:
 
 def main(argv=None) -> int:
     """Entry point of ``jaxnav lc``; returns a process exit code."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
-    try:
-        return _main(args)
-    except (InputError, ValueError, FileNotFoundError, FileExistsError) as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+    return run_command(PROG, build_parser(), _main, argv)
 
 
 def _main(args) -> int:
-    t_start = time.perf_counter()
     cfg = load_config(args.config)
     sched = ot.read_schedule(args.outages, allow_overlap=False) if args.outages else None
+    if sched is not None and sched.satellites_kept is not None and (
+            sched.satellites_kept > 0).any():
+        raise ValueError(f"{args.outages}: satellites_kept > 0 needs raw observations "
+                         "(jaxnav ins with [coupling] kind = 'tight'); a .pos fix is withheld "
+                         "whole")
+    return run(args, cfg, sched)
+
+
+def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
+    """The loose pipeline on ``args`` (the command line's fields) with a validated car
+    configuration and outage schedule (``jaxnav ins`` with ``[coupling] kind = "loose"``)."""
+    t_start = time.perf_counter()
+    if sched is not None:  # outages of one run must not overlap
+        order = np.argsort(sched.start_s)
+        if np.any(sched.start_s[order][1:] < (sched.start_s + sched.length_s)[order][:-1]):
+            raise ValueError("the outages of one loose run must not overlap")
     drive = load_drive(args.imu, args.imu_tag, args.gnss, cfg, duration_s=args.duration)
     if args.outage_grid is not None:
         sched = grid_schedule(drive, *args.outage_grid)
