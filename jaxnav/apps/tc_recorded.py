@@ -195,6 +195,8 @@ def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict) -> Recording
 def ppp_config(opts: TightOptions, rec: Recording) -> ppp.PppConfig:
     """The PPP part of both filters (recorded-data stochastic model)."""
     sys_ids = tuple(sorted({prep_mod.LETTER_TO_SYS[LETTERS[c]] for c in opts.constellations}))
+    # No zenith wet delay state (chosen): over a two-minute run a few-cm ZWD error is a
+    # near-constant common offset that the metre-level broadcast orbits and clocks swamp.
     return ppp.PppConfig(mode=opts.mode, systems=sys_ids, n_slots=len(rec.prep.sv),
                          doppler=opts.doppler, estimate_zwd=False,
                          elevation_mask_rad=math.radians(opts.elevation_mask_deg)
