@@ -40,6 +40,9 @@ What each slot gets, per epoch (S002 eqs 2.25-2.26 with the corrections of SEED_
   |MW_k - mean_arc(MW)| > ``mw_slip_sigmas`` * max(std_arc(MW), floor(E)) with the floor
   ``mw_floor_cycles`` lambda_WL at zenith growing like the S001 eq 11 elevation law;
   either one flags (S002: both detectors run, either one triggers the ambiguity reset).
+  Single frequency has no GF / MW: the carrier's change against the Doppler's integral
+  (``gnss.slips.detect_slips_doppler``; common-mode terms such as the removed SPP clock cancel
+  in its median over the slots) beside the LLI.
 - A-priori receiver clock: the per-epoch SPP clock is removed from code and phase alike (the
   filter still estimates the clock, now a metre-level residual; millisecond receiver-clock
   offsets and jumps would otherwise exceed the filter's gates).
@@ -65,7 +68,12 @@ from jaxnav.geodesy import C_LIGHT
 from jaxnav.gnss import ephemeris, models, satellites, series, signals
 from jaxnav.gnss.interp import clock_table, orbit_table
 from jaxnav.gnss.ppp_data import EpochInput, GnssObs, SlotInfo
-from jaxnav.gnss.slips import DEFAULT_SLIP_THRESHOLDS, SlipThresholds, detect_slips_dual
+from jaxnav.gnss.slips import (
+    DEFAULT_SLIP_THRESHOLDS,
+    SlipThresholds,
+    detect_slips_doppler,
+    detect_slips_dual,
+)
 from jaxnav.gnss.spp import fill_positions, spp
 from jaxnav.io.products import ClockTable, IonexMaps, Sp3Orbit
 from jaxnav.io.rinex import RinexObs
@@ -165,6 +173,12 @@ class PrepareOptions:
     # E5a): e.g. a u-blox receiver's GPS L2C is ("C1C", "C2L", "L1C", "L2L", "D1C").
     signals: dict[str, tuple[str | None, ...]] | None = None
 
+    def slip_thresholds(self) -> SlipThresholds:
+        """The detector's thresholds (GF / MW from these options, the rest the defaults)."""
+        return DEFAULT_SLIP_THRESHOLDS._replace(
+            gf_m=self.gf_slip_m, mw_sigmas=self.mw_slip_sigmas,
+            mw_floor_cycles=self.mw_floor_cycles)
+
     def __post_init__(self):
         if self.freq not in ("single", "dual"):
             raise ValueError(f"freq must be 'single' or 'dual', got {self.freq!r}")
@@ -198,7 +212,7 @@ class PreparedGnss(NamedTuple):
     approx_pos_ecef: np.ndarray  # [T, 3] position used for the corrections
     windup_cycles: np.ndarray  # [T, S]
     tide_ecef_m: np.ndarray  # [T, 3]
-    slip_counts: dict  # {"lli": n, "gf": n, "mw": n}
+    slip_counts: dict  # {"lli": n, "gf": n, "mw": n, "doppler": n}
     lost_counts: dict  # slot-epochs tracked but unusable: {"no_tgd", "no_p1c1", "no_doppler",
     # "no_iono_model"} (the last two only for the rows that need them)
     elevation_rad: np.ndarray  # [T, S] at the approximate position
@@ -564,12 +578,18 @@ def prepare_gnss(
             jnp.asarray(el),
             jnp.asarray(f1),
             jnp.asarray(f2),
-            SlipThresholds(opt.gf_slip_m, opt.mw_slip_sigmas, opt.mw_floor_cycles),
+            opt.slip_thresholds(),
         )
         gf_slip, mw_slip = np.asarray(gf_slip), np.asarray(mw_slip)
+        dop_slip = np.zeros((T, S), bool)
     else:
         gf_slip = mw_slip = np.zeros((T, S), bool)
-    slip = lli_slip | gf_slip | mw_slip
+        have_dop = have_phase & np.isfinite(range_rate)
+        dop_slip = np.asarray(detect_slips_doppler(
+            jnp.asarray(np.where(have_dop, phase_m[..., 0], 0.0)),
+            jnp.asarray(np.where(have_dop, range_rate, 0.0)), jnp.asarray(have_dop),
+            jnp.asarray(el), jnp.asarray(t_rx), opt.slip_thresholds()))
+    slip = lli_slip | gf_slip | mw_slip | dop_slip
 
     # --- availability ---------------------------------------------------------------------------
     if dual:
@@ -610,6 +630,7 @@ def prepare_gnss(
         "lli": int(np.sum(lli_slip & available)),
         "gf": int(np.sum(gf_slip & available)),
         "mw": int(np.sum(mw_slip & available)),
+        "doppler": int(np.sum(dop_slip & available)),
     }
     return PreparedGnss(
         obs=gobs,

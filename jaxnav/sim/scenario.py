@@ -128,17 +128,21 @@ SLIP_FLAGS = ("detector", "oracle")
 def slip_flags(
     obs: observations.Observations, code_band0: int, how: str = "detector"
 ) -> jnp.ndarray:
-    """The filter's slip flags [T, S]: ``obs.lli`` | GF | MW (dual frequency), or the truth.
-
-    A single-frequency user (``code_band0`` = C1) has no GF / MW combination: LLI only, as
-    ``io/prepare.py`` does on recorded data.
-    """
+    """The filter's slip flags [T, S]: ``obs.lli`` | GF | MW (dual frequency), ``obs.lli`` |
+    the carrier-Doppler test (single frequency, ``code_band0`` = C1), as ``io/prepare.py``
+    does on recorded data; or the truth (``"oracle"``)."""
     if how == "oracle":
         return obs.slip
     if how != "detector":
         raise ValueError(f"unknown slip_flags {how!r}; use {' or '.join(SLIP_FLAGS)}")
     if code_band0 == signals.CODE_C1:
-        return obs.lli
+        return obs.lli | slips.detect_slips_doppler(
+            obs.phase_cyc[..., 0] * obs.wavelength_m[:, 0],
+            -obs.wavelength_m[:, 0] * obs.doppler_hz[..., 0],
+            obs.valid,
+            obs.elevation_rad,
+            obs.t_s,
+        )
     gf, mw = slips.detect_slips_dual(
         obs.phase_cyc * obs.wavelength_m,
         jnp.stack([obs.code_m[..., code_band0], obs.code_m[..., signals.CODE_P2]], axis=-1),
