@@ -377,7 +377,8 @@ def _main(args, argv, t_start) -> int:
         f"{'CLK' if clk is not None else ('SP3' if sp3 is not None else 'broadcast')}; "
         f"iono {opt.iono if args.freq == 'single' else 'ionosphere-free'}; slips flagged "
         f"LLI {prep.slip_counts['lli']}, GF {prep.slip_counts['gf']}, "
-        f"MW {prep.slip_counts['mw']}, carrier-Doppler {prep.slip_counts['doppler']}"
+        f"MW {prep.slip_counts['mw']}"
+        + (f", carrier-Doppler {prep.slip_counts['doppler']}" if args.freq == "single" else "")
     )
     lost = {k: v for k, v in prep.lost_counts.items() if v and (
         k != "no_iono_model" or ppp_modes.get(mode).uses_iono_model) and k != "no_doppler"}
