@@ -221,3 +221,13 @@ satellites_kept = [0]
 
     assert body(tmp_path / "ins.pos") == body(tmp_path / "lc.pos")
     assert int(np.sum(read_pos(tmp_path / "ins.pos").q == 7)) == 60  # the 15-s outage at 4 Hz
+
+
+@pytest.mark.slow
+def test_a_log_that_does_not_start_at_rest_is_refused(tmp_path):
+    """The levelling and gyro calibration need rest: a window into the walk is an exit-2 error."""
+    _need_data()
+    cfg = _config(tmp_path, lambda t: t.replace("level_s = 5.0", "level_s = 30.0"))
+    code, _, err = _run(["--config", str(cfg), "--out", str(tmp_path / "o.pos")])
+    assert code == 2 and "not at rest during the first [alignment] level_s = 30 s" in err, err
+    assert not (tmp_path / "o.pos").exists()

@@ -87,9 +87,51 @@ def test_a_damaged_frame_is_counted_and_named_by_its_byte_offset(tmp_path):
         warnings.simplefilter("always")
         log = read_ubx(f)
     text = [str(w.message) for w in got]
-    assert len(text) == 1 and re.search(rf"1 damaged UBX frame.*byte offset {second}\b", text[0])
+    assert len(text) == 2, text
+    assert re.search(rf"1 damaged UBX frame.*byte offset {second}\b", text[0])
+    assert "1 missing RXM-RAWX epoch" in text[1]
     assert log.counts["damaged"] == 1 and log.counts["RXM-RAWX"] == 3
-    assert log.obs.time_gps_s.size == 3  # that epoch is gone, the others are intact
+    # that epoch is back on the grid, empty; the others are intact
+    np.testing.assert_array_equal(log.obs.epoch_present, [True, False, True, True])
+    np.testing.assert_array_equal(log.obs.time_gps_s, WEEK * 604800 + 100.0 + np.arange(4))
+    g = log.obs.systems["G"]
+    assert np.isnan(g.obs["C1C"][1]).all() and np.isfinite(g.obs["C1C"][2, 4])
+    assert g.lli["L1C"][2, 4] == 1  # the phase after the gap starts a new arc
+
+
+def test_a_frame_pyubx2_cannot_read_is_a_damaged_frame(tmp_path):
+    """A checksummed RAWX whose measurement count disagrees with its length."""
+    data = bytearray(_log())
+    first = data.find(b"\xb5\x62\x02\x15")
+    length = data[first + 4] | (data[first + 5] << 8)
+    data[first + 6 + 11] += 1  # numMeas (payload byte 11) one too many
+    end = first + 8 + length
+    a = b = 0
+    for byte in data[first + 2 : end - 2]:
+        a = (a + byte) & 0xFF
+        b = (b + a) & 0xFF
+    data[end - 2 : end] = bytes((a, b))
+    f = tmp_path / "badcount.ubx"
+    f.write_bytes(bytes(data))
+    with pytest.warns(UserWarning, match=rf"1 damaged UBX frame.*byte offset {first}\b"):
+        log = read_ubx(f)
+    assert log.counts["damaged"] == 1 and log.counts["RXM-RAWX"] == 3
+
+
+def test_a_sub_half_cycle_change_and_an_off_grid_epoch(tmp_path):
+    out = b""
+    for k, sub in enumerate((0, 0, 1, 1)):
+        m = _meas(0, 5, 0, 5000 + 1000 * k) | {"subHalfCyc": sub}
+        out += _rawx(100.0 + k, [m])
+    f = tmp_path / "sub.ubx"
+    f.write_bytes(out)
+    log = read_ubx(f)
+    # the receiver moved the phase by half a cycle at epoch 2: a new arc there
+    np.testing.assert_array_equal(log.obs.systems["G"].lli["L1C"][:, 4], [1, 0, 1, 0])
+    f.write_bytes(_rawx(100.0, [_meas(0, 5, 0, 1000)]) + _rawx(101.0, [_meas(0, 5, 0, 2000)])
+                  + _rawx(102.5, [_meas(0, 5, 0, 3000)]))
+    with pytest.raises(InputError, match="500.0 ms off the 1-s grid"):
+        read_ubx(f)
 
 
 def test_a_truncated_file_and_stray_bytes_are_reported(tmp_path):

@@ -53,7 +53,10 @@ SCHEMA = {
              "reference": _PATH},
     "coupling": {"kind": schema.choice(("loose", "tight"))},
     "tight": {
-        "mode": schema.choice(ppp_modes.MODES),
+        # the u-blox signals are read as ionosphere-free pairs (tc_recorded.UBLOX_SIGNALS)
+        "mode": schema.choice([m for m in ppp_modes.MODES
+                               if not ppp_modes.get(m).single_frequency],
+                              "dual-frequency PPP modes"),
         "constellations": schema.items(schema.choice(tc.LETTERS)),
         "elevation_mask_deg": schema.number(0),
         "doppler": schema.boolean(),
@@ -255,18 +258,20 @@ def _report(rec: tc.Recording, opts: tc.TightOptions, plan: tc.OutagePlan, runs:
               f"reference as given {rms_raw:.3f} m)")
     rows = []
     if len(plan.ids):
-        print(f"  {'outage':>10} {'start_s':>8} {'len_s':>6} {'kept':>4}  "
+        print(f"  {'outage':>10} {'start_s':>8} {'len_s':>6} {'kept':>4} {'fixed':>5}  "
               + "  ".join(f"{n + ' max_2d':>12} {n + ' end_2d':>12}" for n in runs))
     for k, oid in enumerate(plan.ids):
         w = slice(int(plan.start_epoch[k]), int(plan.start_epoch[k] + plan.n_epochs[k]))
         row = {"id": oid, "start_s": plan.start_s[k], "length_s": plan.length_s[k],
-               "satellites_kept": int(plan.kept[k])}
+               "satellites_kept": int(plan.kept[k]),
+               # the share of the window where the reference is RTK-fixed (else float)
+               "reference_fixed": float(np.mean(fixed[w]))}
         for name, e2 in errs.items():
             row[f"{name}_max_2d_m"] = float(e2[k + 1][w].max())
             row[f"{name}_end_2d_m"] = float(e2[k + 1][w.stop - 1])
         rows.append(row)
         print(f"  {oid:>10} {row['start_s']:8.2f} {row['length_s']:6.2f} "
-              f"{row['satellites_kept']:4d}  " + "  ".join(
+              f"{row['satellites_kept']:4d} {row['reference_fixed']:5.2f}  " + "  ".join(
                   f"{row[n + '_max_2d_m']:12.3f} {row[n + '_end_2d_m']:12.3f}" for n in errs))
     return rows
 

@@ -31,7 +31,9 @@ are silent are marked):
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import warnings
 from typing import NamedTuple
 
 import equinox as eqx
@@ -63,6 +65,12 @@ from jaxnav.study import outages as ot
 #: sends L2C, and L2 is the frequency the broadcast clock's P1/P2 pair refers to.
 UBLOX_SIGNALS = {"G": ("C1C", "C2L", "L1C", "L2L", "D1C"), "E": ("C1C", "C5Q", "L1C", "L5Q", "D1C")}
 LETTERS = {"gps": "G", "galileo": "E"}
+#: Clock-drift PSD of the filters [m^2/s^3]: (10 m/s)^2 per 0.25-s epoch, i.e. free from epoch
+#: to epoch (the a-priori drift removed from the range rates comes from every satellite, see
+#: load_recording), as ``ppp.RECORDED_CLOCK_PSD_M2_S`` frees the clock.
+FREE_DRIFT_PSD_M2_S3 = 400.0
+#: Largest Doppler speed [m/s] accepted in the levelling window (chosen: a person standing).
+REST_SPEED_M_S = 0.2
 
 
 class TightOptions(NamedTuple):
@@ -114,6 +122,14 @@ def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict) -> Recording
     letters = tuple(LETTERS[c] for c in opts.constellations)
     log = read_ubx(paths["ubx"], systems="".join(letters))
     eph, nav_report = ephemeris_from_sfrbx(log.subframes)
+    kinds = {}
+    for key in nav_report.ephemerides:
+        sat, kind = key.split(":")
+        kinds.setdefault(sat, set()).add(kind)
+    inav_only = sorted(s for s, k in kinds.items() if s[0] == "E" and "fnav" not in k)
+    if inav_only:  # their clocks refer to E1/E5b, not the E1/E5a pair used here (~dm)
+        warnings.warn(f"{paths['ubx']}: Galileo {', '.join(inav_only)} have I/NAV (E1/E5b) "
+                      "clocks only; used with the E1/E5a pair", stacklevel=2)
     opt = prep_mod.PrepareOptions(freq="dual", systems=letters, iono="klobuchar",
                                   signals={k: UBLOX_SIGNALS[k] for k in letters},
                                   spp_mask_rad=math.radians(opts.elevation_mask_deg))
@@ -127,7 +143,10 @@ def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict) -> Recording
                           obs.available & obs.doppler_ok)
     # A-priori receiver clock drift, removed from the range rates as the SPP clock is from the
     # code and phase: a consumer receiver's TCXO drifts by tens of m/s (here -60 to -81 m/s),
-    # which the Doppler gate would reject before the filter's drift state could learn it.
+    # which the Doppler gate would reject before the filter's drift state could learn it. Both
+    # come from every satellite of the epoch, so the filter keeps its clock and drift states
+    # free from epoch to epoch (ppp_config): they take no information from the satellites an
+    # outage withholds.
     drift = np.where(np.asarray(dv.ok), np.asarray(dv.clock_rate_m_s), np.nan)
     drift = np.interp(np.arange(drift.size), np.flatnonzero(np.isfinite(drift)),
                       drift[np.isfinite(drift)])
@@ -161,7 +180,14 @@ def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict) -> Recording
         raise InputError("fewer than two GNSS epochs inside the IMU log after the start",
                          file=paths["imu"], expected="IMU and GNSS logs of the same run")
 
-    # levelling and gyro calibration over the log's first seconds (at rest)
+    # levelling and gyro calibration over the log's first seconds, which must be at rest
+    lev = (t_gnss <= level_end) & np.asarray(dv.ok)
+    if not lev.any() or speed[lev].max() > REST_SPEED_M_S:
+        raise InputError(f"the receiver is not at rest during the first [alignment] level_s = "
+                         f"{cfg.alignment_level_s:g} s (Doppler speed up to "
+                         f"{speed[lev].max() if lev.any() else float('nan'):.2f} m/s)",
+                         file=paths["ubx"], expected=f"a log that starts with {REST_SPEED_M_S}"
+                         " m/s or less for level_s seconds (levelling and gyro calibration)")
     n_lev = max(int(round(cfg.alignment_level_s * cfg.imu_resample_hz)), 2)
     dth_l, dv_l = resample_increments(inc, t_imu0 + 1e-6, 1.0 / cfg.imu_resample_hz, n_lev)
     level_f = dv_l.sum(0) / (n_lev / cfg.imu_resample_hz)
@@ -187,6 +213,9 @@ def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict) -> Recording
         j = np.where(np.abs(ref.time_gps_s[j - 1] - t_ep) < np.abs(ref.time_gps_s[j] - t_ep),
                      j - 1, j)
         ref_q = np.where(np.abs(ref.time_gps_s[j] - t_ep) < 0.05, ref.q[j], 0)  # same epoch
+        if not np.any(ref_q == 1):
+            raise InputError("no fixed (Q = 1) epoch of the reference inside the run",
+                             file=paths["reference"], expected="an RTK track of the same run")
     return Recording(prep, k0, t_ep, t_imu0, dt_ep / K, samples, level_f,
                      np.asarray(sensors.gyro_bias_rad_s), vel_enu[k0], prep.spp_pos_ecef[k0],
                      ref_llh, ref_q, log.counts, nav_report)
@@ -197,10 +226,11 @@ def ppp_config(opts: TightOptions, rec: Recording) -> ppp.PppConfig:
     sys_ids = tuple(sorted({prep_mod.LETTER_TO_SYS[LETTERS[c]] for c in opts.constellations}))
     # No zenith wet delay state (chosen): over a two-minute run a few-cm ZWD error is a
     # near-constant common offset that the metre-level broadcast orbits and clocks swamp.
-    return ppp.PppConfig(mode=opts.mode, systems=sys_ids, n_slots=len(rec.prep.sv),
-                         doppler=opts.doppler, estimate_zwd=False,
-                         elevation_mask_rad=math.radians(opts.elevation_mask_deg)
-                         ).for_recorded_data()
+    cfg = ppp.PppConfig(mode=opts.mode, systems=sys_ids, n_slots=len(rec.prep.sv),
+                        doppler=opts.doppler, estimate_zwd=False,
+                        elevation_mask_rad=math.radians(opts.elevation_mask_deg)
+                        ).for_recorded_data()
+    return dataclasses.replace(cfg, clock_drift_psd_m2_s3=FREE_DRIFT_PSD_M2_S3)
 
 
 def _ins_system(cfg: CarConfig) -> InsSystem:

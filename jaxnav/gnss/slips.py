@@ -20,12 +20,14 @@ class SlipThresholds(NamedTuple):
     mw_sigmas: float = 4.0  # chosen: 4-sigma Melbourne-Wuebbena jump
     mw_floor_cycles: float = 0.25  # chosen: floor 0.25 WL cycles: 4 sigma >= 1 cycle (86 cm)
     # single band (detect_slips_doppler): the Doppler noise at zenith the filters assume
-    # (S001 eq 11, PppConfig.doppler_sigma_m_s; the simulator's too), a 5-sigma test and a
-    # floor for what the trapezoid misses (dt^3 / 12 times the range jerk: 0.04 m for a
-    # vehicle's 0.5 m/s^3 at 1 Hz) and the carrier noise
+    # (S001 eq 11, PppConfig.doppler_sigma_m_s; the simulator's too), a 5-sigma test, a floor
+    # for the carrier noise and what the trapezoid misses, dt^3 / 12 times the range jerk,
+    # with a vehicle's 0.5 m/s^3 (chosen: hard braking onset; 0.04 m at 1 Hz, 1.1 km at 30 s,
+    # where the test is off: a receiver's motion is unknown to it)
     doppler_sigma0_m_s: float = 0.1
     doppler_sigmas: float = 5.0
-    doppler_floor_m: float = 0.04
+    doppler_floor_m: float = 0.01
+    doppler_jerk_m_s3: float = 0.5
 
 
 DEFAULT_SLIP_THRESHOLDS = SlipThresholds()
@@ -124,10 +126,11 @@ def detect_slips_doppler(
     r_k = (Phi_k - Phi_k-1) - (rr_k + rr_k-1) dt / 2 (trapezoid; rr = -lambda D, both in metres
     and both holding the receiver clock, whose change and drift cancel), minus its median over
     the slots tracked at both epochs (a clock step common to all). Slip if |r_k| > n sigma_k,
-    sigma_k^2 = sigma_D(E)^2 dt^2 / 2 + floor^2, sigma_D(E) the S001 eq 11 Doppler noise. Tested
-    where the slot has data at k and k-1 (a gap starts a new arc anyway). The power falls with
-    the interval: at 1 Hz 5 sigma is ~2 L1 cycles at zenith with 0.1 m/s Doppler noise, at 30 s
-    the test flags nothing but gross jumps.
+    sigma_k^2 = sigma_D(E)^2 dt^2 / 2 + floor^2 + (j dt^3 / 12)^2, sigma_D(E) the S001 eq 11
+    Doppler noise, j a bound on the range jerk (the trapezoid's error). Tested where the slot
+    has data at k and k-1 (a gap starts a new arc anyway). The power falls with the interval:
+    at 1 Hz 5 sigma is ~2 L1 cycles at zenith with 0.1 m/s Doppler noise, at 30 s the test is
+    off (kilometres).
     """
     phase_m = jnp.asarray(phase_m)
     rr = jnp.asarray(range_rate_m_s)
@@ -139,7 +142,8 @@ def detect_slips_doppler(
     n = jnp.sum(both, axis=1, keepdims=True)
     med = jnp.where(n >= 3, jnp.nanmedian(r, axis=1, keepdims=True), 0.0)
     sig_d = models.elevation_sigma(thresholds.doppler_sigma0_m_s, jnp.asarray(elevation_rad)[1:])
-    sigma = jnp.sqrt(0.5 * (sig_d * dt) ** 2 + thresholds.doppler_floor_m**2)
+    trapezoid = thresholds.doppler_jerk_m_s3 * dt**3 / 12.0
+    sigma = jnp.sqrt(0.5 * (sig_d * dt) ** 2 + thresholds.doppler_floor_m**2 + trapezoid**2)
     slip = both & (jnp.abs(jnp.where(both, r - med, 0.0)) > thresholds.doppler_sigmas * sigma)
     return jnp.concatenate([jnp.zeros_like(have[:1]), slip], axis=0)
 

@@ -585,8 +585,11 @@ def prepare_gnss(
     else:
         gf_slip = mw_slip = np.zeros((T, S), bool)
         have_dop = have_phase & np.isfinite(range_rate)
+        # the phase with its receiver clock, whose change the range rate's drift matches (the
+        # SPP clock removed above may be held where the SPP failed)
+        phase_clock = phase_m[..., 0] + rx_clock[:, None]
         dop_slip = np.asarray(detect_slips_doppler(
-            jnp.asarray(np.where(have_dop, phase_m[..., 0], 0.0)),
+            jnp.asarray(np.where(have_dop, phase_clock, 0.0)),
             jnp.asarray(np.where(have_dop, range_rate, 0.0)), jnp.asarray(have_dop),
             jnp.asarray(el), jnp.asarray(t_rx), opt.slip_thresholds()))
     slip = lli_slip | gf_slip | mw_slip | dop_slip

@@ -14,8 +14,11 @@ C/N0 dB-Hz), so ``io.prepare.prepare_gnss`` treats them like a RINEX file:
   is resolved (``halfCyc``; before that the phase may be off by half a cycle, RTKLIB marks
   such a phase with LLI bit 1, here it is not used at all);
 - loss of lock (RINEX LLI bit 0) on a phase: the lock time (ms) is shorter than the time
-  since the previous epoch or went down, the phase was missing at the previous epoch, or the
-  receiver reset its clock (``clkReset``: every phase restarts);
+  since the previous epoch or went down, the phase was missing at the previous epoch, the
+  receiver reset its clock (``clkReset``: every phase restarts), or its sub-half-cycle flag
+  changed (the receiver moved the phase by half a cycle, as RTKLIB also flags);
+- missing epochs of the log's regular interval are put back empty (``epoch_present`` False,
+  with a warning); an epoch off that grid by more than 1 ms is an ``InputError``;
 - epoch time = week * 604800 + ``rcvTow``: the receiver's time of measurement (GPST plus the
   receiver clock offset, which the SPP estimates like for any RINEX file).
 """
@@ -163,11 +166,16 @@ def read_ubx(path: str | PathLike, *, systems: str = "GREJ") -> UbxLog:
         if key not in (RAWX, SFRBX, NAV_PVT):
             counts["other"] = counts.get("other", 0) + 1
             continue
-        msg = UBXReader.parse(frame)
+        try:
+            msg = UBXReader.parse(frame)
+        except Exception:  # noqa: BLE001  (pyubx2's errors: a checksummed frame it cannot read)
+            counts["damaged"] += 1
+            skipped["damaged"].append(offset)
+            continue
         counts[msg.identity] = counts.get(msg.identity, 0) + 1
         (rawx if key == RAWX else sfrbx if key == SFRBX else pvt).append((offset, msg))
     _warn_skipped(path, "damaged", skipped["damaged"],
-                  "damaged UBX frame(s) (bad checksum or truncated)")
+                  "damaged UBX frame(s) (bad checksum, truncated, or unreadable payload)")
     _warn_skipped(path, "unrecognised_bytes", skipped["unrecognised_bytes"],
                   "run(s) of bytes that are neither UBX nor NMEA")
     if not rawx:
@@ -193,12 +201,12 @@ def _rawx_rows(msg):
         s = f"_{i:02d}"
         rows.append(tuple(getattr(msg, k + s) for k in (
             "gnssId", "svId", "sigId", "prMes", "cpMes", "doMes", "cno", "locktime",
-            "prValid", "cpValid", "halfCyc")))
+            "prValid", "cpValid", "halfCyc", "subHalfCyc")))
     return rows
 
 
 def _observations(path: Path, rawx, systems: set, counts: dict):
-    times, epochs, resets = [], [], []
+    times, epochs, resets, offsets = [], [], [], []
     last_t = -math.inf
     dup = 0
     for offset, msg in rawx:
@@ -213,27 +221,51 @@ def _observations(path: Path, rawx, systems: set, counts: dict):
         times.append(t)
         epochs.append(_rawx_rows(msg))
         resets.append(bool(msg.clkReset))
+        offsets.append(offset)
     if dup:
         warnings.warn(f"{path}: {dup} repeated RXM-RAWX epoch(s) dropped", stacklevel=3)
     counts["duplicate_epochs"] = dup
-    t_gps = np.asarray(times)
-    T = t_gps.size
+    # Missing epochs (a damaged frame, a receiver hiccup) are put back on the regular grid,
+    # empty (epoch_present False), as io.rinex.read_rinex_obs does: the filters' IMU samples
+    # cover (t_k-1, t_k] of consecutive grid epochs.
+    t_read = np.asarray(times)
+    interval = _interval({}, t_read)
+    if t_read.size > 1:
+        idx = np.rint((t_read - t_read[0]) / interval).astype(np.int64)
+        off = np.abs(t_read - t_read[0] - idx * interval)
+        if np.any(off > 1e-3):
+            k = int(np.argmax(off > 1e-3))
+            raise InputError(f"epoch {t_read[k]:.4f} GPS s is {off[k] * 1e3:.1f} ms off the "
+                             f"{interval:g}-s grid of the log", file=path, record=offsets[k],
+                             expected="RXM-RAWX epochs on one regular interval")
+    else:
+        idx = np.zeros(1, np.int64)
+    T = int(idx[-1]) + 1
+    t_gps = t_read[0] + interval * np.arange(T)
+    t_gps[idx] = t_read
+    present = np.zeros(T, bool)
+    present[idx] = True
+    counts["missing_epochs"] = int(T - t_read.size)
+    if T > t_read.size:
+        warnings.warn(f"{path}: {T - t_read.size} missing RXM-RAWX epoch(s) of the "
+                      f"{interval:g}-s grid left empty", stacklevel=3)
     # every (letter, code) that occurs, in the fixed slots of io.rinex.SLOTS
-    present: dict[str, set[str]] = {}
+    present_codes: dict[str, set[str]] = {}
     for rows in epochs:
         for g, _, sig, *_ in rows:
             letter = GNSS_LETTER.get(g)
             if letter in systems and (g, sig) in SIGNAL_CODES:
-                present.setdefault(letter, set()).add(SIGNAL_CODES[(g, sig)])
+                present_codes.setdefault(letter, set()).add(SIGNAL_CODES[(g, sig)])
     arrays = {}
-    for letter, bands in present.items():
+    for letter, bands in present_codes.items():
         first, n = SLOTS[letter]
         arrays[letter] = {
             f"{kind}{b}": np.full((T, n), np.nan) for b in bands for kind in "CLDS"
-        } | {f"lock{b}": np.full((T, n), np.nan) for b in bands}
+        } | {f"{aux}{b}": np.full((T, n), np.nan) for b in bands for aux in ("lock", "sub")}
     dropped = {"unknown_signal": 0, "slot_out_of_range": 0, "half_cycle_unresolved": 0}
-    for k, rows in enumerate(epochs):
-        for g, sv, sig, pr, cp, dop, cno, lock, pr_ok, cp_ok, half in rows:
+    for k_read, rows in enumerate(epochs):
+        k = int(idx[k_read])
+        for g, sv, sig, pr, cp, dop, cno, lock, pr_ok, cp_ok, half, sub in rows:
             letter = GNSS_LETTER.get(g)
             if letter not in systems:
                 continue
@@ -253,6 +285,7 @@ def _observations(path: Path, rawx, systems: set, counts: dict):
             if cp_ok and half:
                 a[f"L{band}"][k, j] = cp
                 a[f"lock{band}"][k, j] = lock
+                a[f"sub{band}"][k, j] = sub
             elif cp_ok:
                 dropped["half_cycle_unresolved"] += 1
             a[f"D{band}"][k, j] = dop
@@ -262,29 +295,33 @@ def _observations(path: Path, rawx, systems: set, counts: dict):
         warnings.warn(f"{path}: measurements not read: {dropped['unknown_signal']} of signals "
                       f"without a RINEX code, {dropped['slot_out_of_range']} of satellites "
                       "outside the PRN slots", stacklevel=3)
-    reset = np.asarray(resets)
+    reset = np.zeros(T, bool)
+    reset[idx] = resets
     dt_ms = np.concatenate([[np.inf], np.diff(t_gps) * 1e3])
     out = {}
     for letter, a in arrays.items():
         first, n = SLOTS[letter]
         obs, mask, lli, codes = {}, {}, {}, {}
         for name, v in a.items():
-            if name.startswith("lock"):
+            if name.startswith(("lock", "sub")):
                 continue
             obs[name] = v
             mask[name] = np.isfinite(v)
             codes[name] = name
             if name[0] == "L":
-                lock = a[f"lock{name[1:]}"]
+                lock, sub = a[f"lock{name[1:]}"], a[f"sub{name[1:]}"]
                 prev = np.vstack([np.full((1, n), np.nan), lock[:-1]])
+                prev_sub = np.vstack([np.full((1, n), np.nan), sub[:-1]])
+                # a changed sub-half-cycle flag: the receiver moved the phase by half a cycle
                 slip = np.isfinite(lock) & (
                     ~np.isfinite(prev) | (lock < prev) | (lock < dt_ms[:, None]) | reset[:, None]
+                    | (np.isfinite(prev_sub) & (sub != prev_sub))
                 )
                 lli[name] = slip.astype(np.int8)
         sv = np.array([f"{letter}{p:02d}" for p in range(first, first + n)])
         out[letter] = SystemObs(sv, obs, mask, lli, codes)
     week0 = int(t_gps[0] // SECONDS_PER_WEEK)
-    obs = RinexObs(t_gps, np.ones(T, bool), out, _interval({}, t_gps),
+    obs = RinexObs(t_gps, present, out, interval,
                    np.full(3, np.nan), {"PROGRAM": ["read_ubx"]})
 
     def week_of(tow_s: float) -> float:

@@ -8,7 +8,10 @@ on another processor, and on an AMD EPYC host (2026-12-04) every float array of 
 runs differed by up to 2.5e-7 of its scale (ESBC NIS; the rest 1e-9 to 5e-8) with every integer
 (satellites used, gating decisions) and every position (1 um) unchanged. CI runs on whichever
 machine a session gets, so 1e-6 (4x that spread) keeps the check machine-independent while a
-change of a model, a noise figure or a gate still moves the outputs by far more.
+change of a model, a noise figure or a gate still moves the outputs by far more. Limit: the
+tolerance is relative to each array's largest entry, so the small entries of a mixed-scale array
+(a covariance diagonal of m^2 and rad^2) are held loosely; a per-element tolerance would need
+the cross-CPU spread of near-zero entries, which was not measured.
 
 The numbers come from the files a run writes (``numbers_in``: each ``results.nc``'s data
 variables, every ``*.json`` number, every ``*.npz`` array) or from the test's own arrays.
