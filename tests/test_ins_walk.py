@@ -224,6 +224,15 @@ satellites_kept = [0]
 
 
 @pytest.mark.slow
+def test_a_mode_that_needs_the_ionosphere_model_needs_klobuchar(tmp_path):
+    """ic_ppp's ionosphere constraint would silently use default Klobuchar coefficients."""
+    _need_data()
+    cfg = _config(tmp_path, lambda t: t.replace('mode = "float_ppp"', 'mode = "ic_ppp"'))
+    code, _, err = _run(["--config", str(cfg), "--out", str(tmp_path / "o.pos")])
+    assert code == 2 and "holds no Klobuchar page" in err, err
+
+
+@pytest.mark.slow
 def test_a_log_that_does_not_start_at_rest_is_refused(tmp_path):
     """The levelling and gyro calibration need rest: a window into the walk is an exit-2 error."""
     _need_data()

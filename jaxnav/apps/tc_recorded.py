@@ -48,6 +48,7 @@ from jaxnav.apps.lc_drive import resample_increments
 from jaxnav.core import states as st
 from jaxnav.filter import cascade, loose, ppp_only, tight
 from jaxnav.filter.systems import InsSystem, NavSigmas
+from jaxnav.gnss import modes as ppp_modes
 from jaxnav.gnss import ppp
 from jaxnav.gnss.spp import doppler_velocity
 from jaxnav.ins import strapdown
@@ -122,6 +123,11 @@ def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict) -> Recording
     letters = tuple(LETTERS[c] for c in opts.constellations)
     log = read_ubx(paths["ubx"], systems="".join(letters))
     eph, nav_report = ephemeris_from_sfrbx(log.subframes)
+    if ppp_modes.get(opts.mode).uses_iono_model and nav_report.klobuchar_alpha is None:
+        raise InputError(f"[tight] mode = {opts.mode!r} needs a model ionosphere, and the log "
+                         "holds no Klobuchar page (GPS subframe 4 page 18, sent every 12.5 min)",
+                         file=paths["ubx"], expected="a mode without the ionosphere model "
+                         "(df_code, sdf_code, float_ppp) or a longer log")
     kinds = {}
     for key in nav_report.ephemerides:
         sat, kind = key.split(":")
