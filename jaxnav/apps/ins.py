@@ -40,6 +40,7 @@ import numpy as np
 import jaxnav
 from jaxnav.apps import car_config, run_command
 from jaxnav.apps import tc_recorded as tc
+from jaxnav.apps.lc_filter import antenna_track
 from jaxnav.core import schema
 from jaxnav.gnss import modes as ppp_modes
 from jaxnav.io import pos as pos_io
@@ -201,12 +202,12 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
     t_read = time.perf_counter()
     tf, carry, inputs = tc.build_tight(cfg.car, opts, rec)
     out = tc.run_tight(tf, carry, inputs, keeps)
-    ant = np.asarray(tc.antenna_llh(tf.system, out.llh, out.euler))
+    ant = np.asarray(antenna_track(tf.system.lever_b, out))
     runs = {"tight": (ant, out.n_sat)}
     if opts.compare_loose:
         cf, c_carry, c_inputs = tc.build_loose(cfg.car, opts, rec)
         lo = tc.run_loose(cf, c_carry, c_inputs, keeps)
-        runs["loose"] = (np.asarray(tc.antenna_llh(cf.lc.system, lo.lc.llh, lo.lc.euler)),
+        runs["loose"] = (np.asarray(antenna_track(cf.lc.system.lever_b, lo.lc)),
                          lo.fix.pos_valid)
     jax.block_until_ready(out.llh)
     t_run = time.perf_counter()
@@ -221,7 +222,7 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
 
     t_rel = rec.time_gps_s - rec.t_imu0_gps_s
     print(f"{PROG}: tight {opts.mode} / {cfg.car.imu_errors_states}, "
-          f"{rec.time_gps_s.size} epochs of {np.median(np.diff(rec.time_gps_s)):g} s from "
+          f"{rec.time_gps_s.size} epochs of {rec.epoch_dt_s:g} s from "
           f"{t_rel[0]:.2f} s after the first IMU sample; satellites {','.join(rec.prep.sv)}")
     sats = {k.split(":")[0] for k in rec.nav_report.ephemerides}
     print(f"  ubx: {rec.ubx_counts.get('RXM-RAWX', 0)} RAWX epochs, "

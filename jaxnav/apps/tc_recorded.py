@@ -111,6 +111,15 @@ class Recording(NamedTuple):
     ubx_counts: dict
     nav_report: object
 
+    @property
+    def epochs(self) -> slice:
+        """The filter epochs' indices in ``prep`` (those after the initial state's)."""
+        return slice(self.k0 + 1, self.k0 + 1 + self.time_gps_s.size)
+
+    @property
+    def epoch_dt_s(self) -> float:
+        return float(np.median(np.diff(self.time_gps_s)))
+
 
 def _enu_velocity(prep, dv) -> np.ndarray:
     llh = np.asarray(jax.vmap(geodesy.ecef_to_llh)(jnp.asarray(prep.approx_pos_ecef)))
@@ -262,19 +271,17 @@ def _start(cfg: CarConfig, opts: TightOptions, rec: Recording, system: InsSystem
 
 
 def _gnss_inputs(rec: Recording) -> tight.EpochInput:
-    sl = slice(rec.k0 + 1, rec.k0 + 1 + rec.time_gps_s.size)
-    obs = jax.tree.map(lambda a: a[sl], rec.prep.obs)
+    obs = jax.tree.map(lambda a: a[rec.epochs], rec.prep.obs)
     return tight.EpochInput(samples=rec.samples, obs=obs,
                             keep=jnp.ones(obs.available.shape, bool),
-                            day_of_year=rec.prep.day_of_year[sl])
+                            day_of_year=rec.prep.day_of_year[rec.epochs])
 
 
 def build_tight(cfg: CarConfig, opts: TightOptions, rec: Recording):
     """(TightFilter, initial carry, inputs) of the recording."""
     system = _ins_system(cfg)
     tf = tight.TightFilter(system=system, cfg=ppp_config(opts, rec), slots=rec.prep.slots,
-                           imu_dt_s=rec.imu_dt_s, epoch_dt_s=float(np.median(np.diff(
-                               rec.time_gps_s))))
+                           imu_dt_s=rec.imu_dt_s, epoch_dt_s=rec.epoch_dt_s)
     nav0, sig, sensors0 = _start(cfg, opts, rec, system)
     obs0 = jax.tree.map(lambda a: a[rec.k0], rec.prep.obs)
     carry = tight.initial_carry(tf, nav0, obs0, sig, sensors0)
@@ -284,11 +291,10 @@ def build_tight(cfg: CarConfig, opts: TightOptions, rec: Recording):
 def build_loose(cfg: CarConfig, opts: TightOptions, rec: Recording):
     """(CascadeFilter, initial carry, inputs): GNSS-only PPP of the same mode feeding the LC."""
     system = _ins_system(cfg)
-    epoch_dt = float(np.median(np.diff(rec.time_gps_s)))
     lcfg = loose.LooseConfig(use_pos=True, use_vel=True, use_nhc=False, use_zupt=False,
                              use_zaru=False, cov_substeps=cfg.filter_cov_substeps,
                              gate_chi2=cfg.filter_gate_chi2)
-    lf = loose.LooseFilter(system, lcfg, rec.imu_dt_s, epoch_dt)
+    lf = loose.LooseFilter(system, lcfg, rec.imu_dt_s, rec.epoch_dt_s)
     pcfg = ppp_config(opts, rec)
     cf = cascade.make_filter(pcfg, rec.prep.slots, lf)
     nav0, sig, sensors0 = _start(cfg, opts, rec, system)
@@ -332,8 +338,8 @@ def plan_outages(rec: Recording, sched: ot.Schedule) -> OutagePlan:
 
 def keep_masks(rec: Recording, plan: OutagePlan) -> jnp.ndarray:
     """[n + 1, E, S] keep masks: no outage first, then every planned outage."""
-    inp_avail = jnp.asarray(rec.prep.obs.available[rec.k0 + 1: rec.k0 + 1 + rec.time_gps_s.size])
-    el = jnp.asarray(rec.prep.elevation_rad[rec.k0 + 1: rec.k0 + 1 + rec.time_gps_s.size])
+    inp_avail = jnp.asarray(rec.prep.obs.available[rec.epochs])
+    el = jnp.asarray(rec.prep.elevation_rad[rec.epochs])
     masks = [jnp.ones(inp_avail.shape, bool)]
     for k in range(len(plan.ids)):
         o = ot.Outage(jnp.asarray(plan.start_epoch[k]), jnp.asarray(plan.n_epochs[k]),
@@ -359,14 +365,6 @@ def run_loose(cf, carry, inputs, keeps):
     return jax.vmap(one)(keeps)
 
 
-def antenna_llh(system: InsSystem, llh, euler):
-    """Antenna positions [..., 3] of INS outputs (IMU position + C_b^l l^b)."""
-    f = lambda p, e: strapdown.antenna_llh(p, attitude.dcm_from_euler(e), system.lever_b)
-    for _ in range(llh.ndim - 1):
-        f = jax.vmap(f)
-    return f(llh, euler)
-
-
 def horizontal_errors(rec: Recording, llh_ant, offset_enu_m=None):
     """([..., E] horizontal error [m], [..., E, 3] ENU error) of antenna tracks against the
     reference (shifted by ``offset_enu_m``, see :func:`reference_offset`)."""
@@ -389,9 +387,8 @@ def reference_offset(rec: Recording) -> np.ndarray:
     the reference into the broadcast orbits' frame, so the outage errors measure the drift
     of the filters, not the base's coordinate.
     """
-    sl = slice(rec.k0 + 1, rec.k0 + 1 + rec.time_gps_s.size)
-    ok = rec.prep.spp_ok[sl] & (rec.ref_q == 1)
-    spp_llh = jax.vmap(geodesy.ecef_to_llh)(jnp.asarray(rec.prep.spp_pos_ecef[sl][ok]))
+    ok = rec.prep.spp_ok[rec.epochs] & (rec.ref_q == 1)
+    spp_llh = jax.vmap(geodesy.ecef_to_llh)(jnp.asarray(rec.prep.spp_pos_ecef[rec.epochs][ok]))
     e = np.asarray(mt.enu_errors(spp_llh, jnp.asarray(rec.ref_llh[ok])))
     return np.median(e, axis=0)
 
@@ -411,4 +408,4 @@ def pos_solution(rec: Recording, llh_ant, P_nav, n_sat, withheld) -> pos_io.PosS
 
 __all__ = ["Recording", "TightOptions", "OutagePlan", "load_recording", "build_tight",
            "build_loose", "plan_outages", "keep_masks", "run_tight", "run_loose",
-           "antenna_llh", "horizontal_errors", "pos_solution"]
+           "horizontal_errors", "pos_solution"]
