@@ -181,10 +181,6 @@ def _loose(cfg: InsConfig, args, sched) -> int:
     """``jaxnav lc``'s pipeline on ``data.gnss_pos`` (complete outages only)."""
     from jaxnav.apps import lc
 
-    if sched is not None and sched.satellites_kept is not None and (
-            sched.satellites_kept > 0).any():
-        raise ValueError("satellites kept > 0 need raw observations: [coupling] kind = 'tight'"
-                         " (a loose run withholds the whole fix)")
     lc_args = argparse.Namespace(
         imu=cfg.paths["imu"], imu_tag=cfg.paths.get("imu_tag"), gnss=cfg.paths["gnss_pos"],
         config=str(cfg.path), outages=None, outage_grid=None, duration=None, out=args.out,

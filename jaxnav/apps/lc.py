@@ -165,11 +165,6 @@ def main(argv=None) -> int:
 def _main(args) -> int:
     cfg = load_config(args.config)
     sched = ot.read_schedule(args.outages, allow_overlap=False) if args.outages else None
-    if sched is not None and sched.satellites_kept is not None and (
-            sched.satellites_kept > 0).any():
-        raise ValueError(f"{args.outages}: satellites_kept > 0 needs raw observations "
-                         "(jaxnav ins with [coupling] kind = 'tight'); a .pos fix is withheld "
-                         "whole")
     return run(args, cfg, sched)
 
 
@@ -177,6 +172,11 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
     """The loose pipeline on ``args`` (the command line's fields) with a validated car
     configuration and outage schedule (``jaxnav ins`` with ``[coupling] kind = "loose"``)."""
     t_start = time.perf_counter()
+    if sched is not None and sched.satellites_kept is not None and (
+            sched.satellites_kept > 0).any():
+        where = f"{args.outages}: " if args.outages else "[outages] "
+        raise ValueError(f"{where}satellites_kept > 0 needs raw observations (jaxnav ins with "
+                         "[coupling] kind = 'tight'); a .pos fix is withheld whole")
     if sched is not None:  # outages of one run must not overlap
         order = np.argsort(sched.start_s)
         if np.any(sched.start_s[order][1:] < (sched.start_s + sched.length_s)[order][:-1]):
