@@ -41,8 +41,8 @@ What each slot gets, per epoch (S002 eqs 2.25-2.26 with the corrections of SEED_
   ``mw_floor_cycles`` lambda_WL at zenith growing like the S001 eq 11 elevation law;
   either one flags (S002: both detectors run, either one triggers the ambiguity reset).
   Single frequency has no GF / MW: the carrier's change against the Doppler's integral
-  (``gnss.slips.detect_slips_doppler``; common-mode terms such as the removed SPP clock cancel
-  in its median over the slots) beside the LLI.
+  (``gnss.slips.detect_slips_doppler``, on the phase before the SPP clock is removed, so the
+  receiver clock's change cancels against the Doppler's drift) beside the LLI.
 - A-priori receiver clock: the per-epoch SPP clock is removed from code and phase alike (the
   filter still estimates the clock, now a metre-level residual; millisecond receiver-clock
   offsets and jumps would otherwise exceed the filter's gates).
