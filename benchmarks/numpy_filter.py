@@ -173,6 +173,9 @@ class NumpyTightFilter:
     accel_bias_tau_s: np.ndarray
     gyro_bias_sigma: np.ndarray
     gyro_bias_tau_s: np.ndarray
+    # scale-factor sigmas INS15 does not estimate (errors.unmodelled_scale_psd)
+    accel_scale_sigma: np.ndarray
+    gyro_scale_sigma: np.ndarray
     accel_gm_share: np.ndarray  # errors.gm_share: drift part of a lumped bias correction
     gyro_gm_share: np.ndarray
     # PPP configuration (gnss/ppp.PppConfig)
@@ -238,6 +241,8 @@ class NumpyTightFilter:
             accel_bias_tau_s=triad(m.accel_bias_tau_s),
             gyro_bias_sigma=triad(m.gyro_bias_sigma_rad_s),
             gyro_bias_tau_s=triad(m.gyro_bias_tau_s),
+            accel_scale_sigma=triad(m.accel_scale_sigma),
+            gyro_scale_sigma=triad(m.gyro_scale_sigma),
             # INS15 lumps turn-on + drift: the drift share of a correction by prior variances
             accel_gm_share=nn.gm_share(m.accel_bias_sigma_m_s2, m.accel_bias_ton_sigma_m_s2),
             gyro_gm_share=nn.gm_share(m.gyro_bias_sigma_rad_s, m.gyro_bias_ton_sigma_rad_s
@@ -277,7 +282,7 @@ def _with_multipath(white_m, multipath_m, cfg, dt_s) -> float:
 # ---- INS error model (ins/errors.py) -----------------------------------------------------------
 
 
-def _process_model(nf: NumpyTightFilter, llh, vel, C, f_b):
+def _process_model(nf: NumpyTightFilter, llh, vel, C, f_b, rates=None):
     """Continuous F of the full filter and the driving noise G Qc G^T (errors.error_dynamics and
     ppp.gnss_dynamics; the GNSS states are driven by identity columns of their own PSDs)."""
     L = nf.layout
@@ -296,6 +301,10 @@ def _process_model(nf: NumpyTightFilter, llh, vel, C, f_b):
     Qg[E, E] = (C * nf.gyro_arw**2) @ C.T
     Qg[BA, BA] = np.diag(2.0 * nf.accel_bias_sigma**2 / nf.accel_bias_tau_s)
     Qg[BG, BG] = np.diag(2.0 * nf.gyro_bias_sigma**2 / nf.gyro_bias_tau_s)
+    if rates is not None:  # errors.unmodelled_scale_psd: INS15 has no scale-factor states
+        f_rate2, w_rate2, span = rates
+        Qg[BA, BA] += np.diag(nf.accel_scale_sigma**2 * f_rate2 * span)
+        Qg[BG, BG] += np.diag(nf.gyro_scale_sigma**2 * w_rate2 * span)
     Qg[L.i("clock_bias"), L.i("clock_bias")] = nf.clock_bias_psd
     Qg[L.i("clock_drift"), L.i("clock_drift")] = nf.clock_drift_psd
     Qg[L.i("zwd"), L.i("zwd")] = nf.zwd_psd
@@ -481,7 +490,9 @@ def _epoch(nf: NumpyTightFilter, st: dict, ep: dict, mechanize):
     f_b, w_ib_b = dv.sum(0) / span, dth.sum(0) / span
     C = nn.dcm_from_quat(q)
 
-    F, Qg = _process_model(nf, llh, vel, C, f_b)
+    rates = (nn.input_rate2(dv, dt, nf.accel_vrw**2), nn.input_rate2(dth, dt, nf.gyro_arw**2),
+             span)
+    F, Qg = _process_model(nf, llh, vel, C, f_b, rates)
     P = _propagate_covariance(nf, st["P"], F, Qg)
     # InsSystem.predict_sensors (errors.decay): the filter's Gauss-Markov bias shares decay.
     fa = np.exp(-nf.epoch_dt_s / nf.accel_bias_tau_s)

@@ -379,6 +379,15 @@ def antenna_lever_arm(llh, vel, C, w_ib_b, lever_b):
     return llh_ant, vel_ant, J_llh, J_vel
 
 
+def input_rate2(x, dt, psd):
+    """InsSystem._input_rates: the squared least-squares slope of the increments x / dt over
+    the samples [K, 3], minus the slope variance of white noise of PSD ``psd``, floored at 0."""
+    t = (np.arange(x.shape[0]) - (x.shape[0] - 1) / 2.0) * dt
+    stt = max(float(t @ t), dt * dt)
+    slope = (t @ (x / dt)) / stt
+    return np.maximum(slope**2 - psd / dt / stt, 0.0)
+
+
 def gm_share(sigma_gm, sigma_ton):
     """errors.gm_share for a lumped (INS15) bias block: sigma_gm^2 / (sigma_gm^2 + sigma_ton^2)
     per axis, 1 where both are zero."""

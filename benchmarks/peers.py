@@ -461,6 +461,9 @@ class NumpyLooseIns15:
                 2.0 * tri(m.gyro_bias_sigma_rad_s) ** 2 / self.tau_g,
             ]
         )
+        # scale factors INS15 does not estimate (ins.errors.unmodelled_scale_psd)
+        self.scale_a, self.scale_g = tri(m.accel_scale_sigma), tri(m.gyro_scale_sigma)
+        self.psd_a, self.psd_g = self.qc[0:3], self.qc[3:6]
         self.pos_scale, self.vel_scale = float(lf.cfg.pos_cov_scale), float(lf.cfg.vel_cov_scale)
         self.algebra = algebra
         if algebra == "filterpy":
@@ -522,8 +525,11 @@ class NumpyLooseIns15:
             f_b, w_b = v_c.sum(0) / span, th_c.sum(0) / span
             C = nn.dcm_from_quat(q)
             F, G = self.dynamics(llh, vel, C, f_b, w_b)
+            qc = self.qc.copy()
+            qc[6:9] += self.scale_a**2 * nn.input_rate2(v_c, dt, self.psd_a) * span
+            qc[9:12] += self.scale_g**2 * nn.input_rate2(th_c, dt, self.psd_g) * span
             # ekf.discretize as loose.py uses it: third-order series, no squarings.
-            Phi, Qd = nn.discretize(F, (G * self.qc) @ G.T, span, squarings=0)
+            Phi, Qd = nn.discretize(F, (G * qc) @ G.T, span, squarings=0)
             # the bias estimates decay like the Gauss-Markov model (InsSystem.predict_sensors)
             fa, fg = np.exp(-span / self.tau_a), np.exp(-span / self.tau_g)
             ba, bg = ba - (1.0 - fa) * ba_gm, bg - (1.0 - fg) * bg_gm

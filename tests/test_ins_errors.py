@@ -351,3 +351,56 @@ def test_sensor_feedback_and_imu_compensation():
                                    - est.accel_bias_m_s2), rtol=1e-9, atol=1e-13)
         np.testing.assert_allclose(new.gyro_bias_gm_rad_s, share_g * (raw.gyro_bias_rad_s
                                    - est.gyro_bias_rad_s), rtol=1e-9, atol=1e-13)
+
+
+def test_unmodelled_scale_factors_drive_the_bias_of_a_layout_without_them():
+    """INS15 on an IMU with scale errors: the bias absorbs b + S f, whose change over a step T
+    is S f' T, so the bias PSD gains sigma_S^2 f'^2 T (errors.unmodelled_scale_psd); INS21
+    estimates S and gains nothing."""
+    llh, vel, C = jnp.array([0.9, 0.1, 50.0]), jnp.array([3.0, 4.0, 0.0]), jnp.eye(3)
+    f_b, w_b = jnp.array([0.5, 0.0, 9.8]), jnp.array([0.0, 0.0, 0.2])
+    rates = errors.InputRates(jnp.array([0.25, 0.0, 0.01]), jnp.array([0.0, 0.0, 0.04]),
+                              jnp.asarray(1.0))
+    for layout, extra in ((INS15, True), (INS21, False)):
+        _, _, Q0 = errors.error_dynamics(layout, llh, vel, C, f_b, w_b, MODEL)
+        _, _, Q1 = errors.error_dynamics(layout, llh, vel, C, f_b, w_b, MODEL, rates)
+        noise = errors.noise_layout(layout)
+        d = np.diag(np.asarray(Q1 - Q0))
+        if extra:
+            np.testing.assert_allclose(d[noise.sl("accel_bias")],
+                                       1e-3**2 * np.array([0.25, 0.0, 0.01]), rtol=1e-12)
+            np.testing.assert_allclose(d[noise.sl("gyro_bias")],
+                                       2e-3**2 * np.array([0.0, 0.0, 0.04]), rtol=1e-12)
+        else:
+            assert np.all(d == 0.0)
+
+
+def test_input_rates_recover_a_ramp_and_discount_white_noise():
+    """InsSystem's input rates: the least-squares slope of a noise-free ramp f = f0 + a t is a
+    (squared, to round-off); on white noise of the model's VRW alone the debiased square is
+    below the raw slope's variance (the noise share is removed)."""
+    from jaxnav.filter import loose
+    from jaxnav.filter.systems import InsSystem
+    from jaxnav.sim.sensors import span_cpt
+
+    model = loose.imu_error_model(span_cpt())
+    system = InsSystem(INS15, model)
+    dt, K = 0.01, 100
+    t = (jnp.arange(K) + 0.5) * dt
+    a = jnp.array([0.3, -0.1, 0.0])
+    dv = (jnp.array([0.2, 0.1, 9.8]) + t[:, None] * a) * dt
+    inc = strapdown.ImuIncrements(jnp.zeros((K, 3)), dv)
+    r = system._input_rates(inc, dt)
+    vrw2 = float(jnp.broadcast_to(model.accel_vrw_m_s_sqrt_s, (3,))[0]) ** 2
+    noise_var = vrw2 / dt / float(jnp.sum((t - t.mean()) ** 2))
+    np.testing.assert_allclose(np.asarray(r.f_rate2_b), np.maximum(np.asarray(a) ** 2 - noise_var,
+                                                                     0.0), rtol=1e-9, atol=1e-15)
+    assert float(r.span_s) == pytest.approx(K * dt)
+    rng = np.random.default_rng(0)
+    white = jnp.asarray(rng.normal(size=(4000, K, 3)) * np.sqrt(vrw2 * dt))
+    tc = t - t.mean()
+    raw = jax.vmap(lambda x: (tc @ (x / dt) / jnp.sum(tc**2)) ** 2)(white)
+    deb = jax.vmap(lambda x: system._input_rates(strapdown.ImuIncrements(x, x), dt).f_rate2_b
+                   )(white)
+    assert float(raw.mean()) == pytest.approx(noise_var, rel=0.05)  # the slope's noise variance
+    assert float(deb.mean()) < 0.6 * noise_var  # E[max(0, chi2_1 - 1)] = 0.48

@@ -68,7 +68,8 @@ def _systems():
         strapdown.nav_state(LLH0, jnp.array([9.0, -5.0, 0.3]), jnp.array([0.02, -0.03, 2.1])),
         strapdown.ImuIncrements(jnp.zeros(3), jnp.zeros(3)),
     )
-    mean_i = (jnp.array([0.3, 0.5, 9.8]), jnp.array([0.01, -0.02, 0.15]))
+    mean_i = ins.idle_inputs(nav_i)._replace(f_b=jnp.array([0.3, 0.5, 9.8]),
+                                             w_ib_b=jnp.array([0.01, -0.02, 0.15]))
     return [("riss", rs, nav_r, rs.idle_inputs(nav_r)), ("ins", ins, nav_i, mean_i)]
 
 
@@ -96,7 +97,8 @@ def test_rows_match_autodiff(mode, bssd):
                     gnss_est=gnss_est, hatch=hatch, n_sys=n_sys, keep=keep, name=name):
             nav_c, _ = system.feedback(nav, sens, dx, layout)
             if name == "ins":  # the true rates are the compensated ones minus their errors
-                mean = (mean[0] - dx[layout.sl("accel_bias")], mean[1] - dx[layout.sl("gyro_bias")])
+                mean = mean._replace(f_b=mean.f_b - dx[layout.sl("accel_bias")],
+                                     w_ib_b=mean.w_ib_b - dx[layout.sl("gyro_bias")])
             est = gnss_est - jnp.where(jnp.arange(layout.size) >= n_sys, dx, 0.0)
             if system.layout.has("clock_bias"):
                 est = est - jnp.where(

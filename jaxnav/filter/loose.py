@@ -489,7 +489,7 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
     (nav, P), means = jax.lax.scan(substep, (carry.nav, carry.P), chunks)
     # x_hat <- Phi x_hat for the sensor estimates: Gauss-Markov shares decay (issue 16, defect 4)
     carry = carry._replace(sensors=system.predict_sensors(carry.sensors, dt_sub * n_sub))
-    f_mean_b, w_mean_b = jax.tree.map(lambda a: a.mean(0), means)  # epoch means (equal chunks)
+    f_mean_b, w_mean_b = means.f_b.mean(0), means.w_ib_b.mean(0)  # epoch means (equal chunks)
     state, last = nav.state, nav.prev
     w_now_b = last.dtheta_b / lf.imu_dt_s  # rate at t_k - dt/2 for the lever-arm terms
     C = state.C_b_l
@@ -519,7 +519,8 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
         # are used (and none at the alignment epoch, whose fix initialised the state).
         gnss_ok = jnp.stack([aligned | static, aligned | static, jnp.asarray(True)]) & ~now
 
-    rx = system.antenna(nav, (f_mean_b, w_now_b), carry.sensors, layout)
+    last_in = jax.tree.map(lambda a: a[-1], means)._replace(f_b=f_mean_b, w_ib_b=w_now_b)
+    rx = system.antenna(nav, last_in, carry.sensors, layout)
     pos_rows, vel_rows = _gnss_rows(lf, layout, rx, inp.gnss)
     fix_bias, fix_cov = carry.fix_bias, carry.fix_cov
     if layout.has("fix_bias"):

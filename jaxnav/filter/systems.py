@@ -16,6 +16,7 @@ estimated errors back. The filters (tight.py, loose.py) only talk to this interf
 from __future__ import annotations
 
 import abc
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -363,6 +364,14 @@ class RissSystem(AbstractNavSystem):
         return jnp.stack([nav.roll, nav.pitch, nav.azimuth])
 
 
+class InsInputs(NamedTuple):
+    """The full INS's mean inputs over a propagation step (``InsSystem.propagate``)."""
+
+    f_b: jax.Array  # mean compensated specific force [m/s^2], body
+    w_ib_b: jax.Array  # mean compensated angular rate [rad/s], body
+    rates: ins_errors.InputRates  # their squared rates of change (unmodelled scale factors)
+
+
 class InsSystem(AbstractNavSystem):
     """Full strapdown INS (ENU, quaternion) with the 15/21/27-state error model."""
 
@@ -375,24 +384,48 @@ class InsSystem(AbstractNavSystem):
     gyro_calibration_s: float | None = eqx.field(static=True, default=None)
 
     def propagate(self, nav, sensors: ins_errors.SensorErrors, samples, dt):
-        """``nav`` an ``InsNav``; ``samples`` raw ImuIncrements [K]."""
+        """``nav`` an ``InsNav``; ``samples`` raw ImuIncrements [K]. Mean inputs: the mean
+        specific force and rate, and their rates of change (``_input_rates``)."""
         corrected = ins_errors.correct_imu(samples, sensors, dt)
         state, _ = strapdown.mechanize(nav.state, corrected, dt, nav.prev)
         last = strapdown.ImuIncrements(corrected.dtheta_b[-1], corrected.dv_b[-1])
         span = dt * samples.dv_b.shape[0]
-        mean = (corrected.dv_b.sum(0) / span, corrected.dtheta_b.sum(0) / span)
+        mean = InsInputs(corrected.dv_b.sum(0) / span, corrected.dtheta_b.sum(0) / span,
+                         self._input_rates(corrected, dt))
         return strapdown.InsNav(state, last), mean
+
+    def _input_rates(self, corrected: strapdown.ImuIncrements, dt) -> ins_errors.InputRates:
+        """Least-squares slopes s of f_b and w_ib_b over the samples, squared, minus the slope
+        variance their white noise gives, (PSD / dt) / sum(t_i^2) with t_i the sample times
+        about the middle (VRW / ARW of the model), floored at 0."""
+        K = corrected.dv_b.shape[0]
+        t = (jnp.arange(K) - (K - 1) / 2.0) * dt
+        stt = jnp.maximum(jnp.sum(t * t), dt * dt)  # K = 1: no slope (0 below)
+
+        def rate2(x, psd):
+            slope = (t @ (x / dt)) / stt
+            return jnp.maximum(slope**2 - psd / dt / stt, 0.0)
+
+        m = self.model
+        if m is None:
+            z = jnp.zeros(3)
+            return ins_errors.InputRates(z, z, jnp.asarray(K * dt))
+        return ins_errors.InputRates(
+            rate2(corrected.dv_b, jnp.broadcast_to(m.accel_vrw_m_s_sqrt_s, (3,)) ** 2),
+            rate2(corrected.dtheta_b, jnp.broadcast_to(m.gyro_arw_rad_sqrt_s, (3,)) ** 2),
+            jnp.asarray(K * dt),
+        )
 
     def dynamics(self, nav, mean_inputs, sensors):
         state = nav.state
-        f_b, w_ib_b = mean_inputs
         return ins_errors.error_dynamics(
-            self.layout, state.llh, state.vel_enu, state.C_b_l, f_b, w_ib_b, self.model
+            self.layout, state.llh, state.vel_enu, state.C_b_l, mean_inputs.f_b,
+            mean_inputs.w_ib_b, self.model, mean_inputs.rates,
         )
 
     def antenna(self, nav, mean_inputs, sensors, layout_full: StateLayout):
         state = nav.state
-        _, w_ib_b = mean_inputs
+        w_ib_b = mean_inputs.w_ib_b
         C = state.C_b_l
         llh_ant = strapdown.antenna_llh(state.llh, C, self.lever_b)
         vel_ant = strapdown.antenna_vel_enu(state.llh, state.vel_enu, C, w_ib_b, self.lever_b)
@@ -443,8 +476,9 @@ class InsSystem(AbstractNavSystem):
         return self.zero_sensors()._replace(gyro_bias_rad_s=w_mean - w_ie_b)
 
     def idle_inputs(self, nav):
-        """Mean (f_b, w_ib_b) before any propagation (only the lever-arm terms read them)."""
-        return (jnp.zeros(3), jnp.zeros(3))
+        """Mean inputs before any propagation (only the lever-arm terms read them)."""
+        z = jnp.zeros(3)
+        return InsInputs(z, z, ins_errors.InputRates(z, z, jnp.zeros(())))
 
     def llh(self, nav):
         return nav.state.llh
