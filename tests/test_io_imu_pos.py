@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import struct
 import warnings
 from pathlib import Path
@@ -102,7 +103,7 @@ def _synthetic_log(
 
 def test_timetag_header_records_and_wrap(tmp_path):
     start = 1_300_000_000.25
-    ticks = [10, 20, 2**32 - 5, 2**32 + 7]  # the host tick passes through the uint32 wrap
+    ticks = [2**32 - 25, 2**32 - 15, 2**32 - 5, 2**32 + 7]  # the host tick wraps (uint32 ms)
     path = tmp_path / "x.tag"
     path.write_bytes(_tag_bytes(start, ticks, [5, 9, 30, 31]))
     tag = read_timetag(path)
@@ -215,6 +216,32 @@ def test_imu_damaged_inputs(tmp_path):
     (tmp_path / "imu.csv.tag").unlink()
     with pytest.raises(InputError, match="time-tag file .* not found"):
         read_imu_csv(csv)
+
+
+def test_imu_values_beyond_full_scale_and_tick_spikes_are_refused(tmp_path):
+    """Issue 23: 1e300 g, 5000 deg/s and one tick set to 0xFFFFFFF0 (which looked like a counter
+    wrap and moved every later sample by 2^32 ms) are refused with their line."""
+
+    def field(k, value):
+        def edit(rows):
+            parts = rows[100][0].split(",")
+            parts[k] = value
+            rows[100] = (",".join(parts), *rows[100][1:])
+            return rows
+
+        return edit
+
+    for k, value, why in (
+        (1, "1e300", "acceleration"),
+        (5, "-5000", "angular rate"),
+        (6, str(0xFFFFFFF0), "tick jumps forward"),
+    ):
+        with pytest.raises(InputError, match=rf"line 101: {why}"):
+            read_imu_csv(_mutated(tmp_path, field(k, value)))
+    p = tmp_path / "spike.tag"
+    p.write_bytes(_tag_bytes(1.3e9, [10, 20, 0xFFFFFFF0, 40, 50], [4, 8, 12, 16, 20]))
+    with pytest.raises(InputError, match=r"record 2: time-tag tick jumps forward"):
+        read_timetag(p)
 
 
 def test_sensor_to_body_dcm_closed_forms():
@@ -480,6 +507,31 @@ def test_pos_damaged_inputs(tmp_path):
 
     with pytest.raises(InputError, match="unsupported position format"):
         read_pos(damaged(ecef))
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "why"),
+    [
+        (4, "2e5", "height"),  # fields after the two time fields: lat, lon, height, Q, ns...
+        (5, "9", "quality flag Q"),
+        (6, "-3", "number of satellites"),
+        (8, "-0.5", "sdn/sde/sdu"),
+        (16, "600", "velocity"),  # ve above the CoCom limit
+        (19, "-1e300", "sdvn/sdve/sdvu"),
+    ],
+)
+def test_pos_values_no_receiver_writes_are_refused(tmp_path, field, value, why):
+    """Issue 23: a negative sigma, an impossible height, speed, Q or satellite count."""
+    p = tmp_path / "x.pos"
+    write_pos(p, _synthetic_solution(n=10))
+    lines = p.read_text().splitlines()
+    k = sum(line.startswith("%") for line in lines) + 4
+    parts = lines[k].split()
+    parts[field] = value
+    lines[k] = " ".join(parts)
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=rf"line {k + 1}: {re.escape(why)}.*out of range"):
+        read_pos(p)
 
 
 def test_gps_epoch_constant():

@@ -444,6 +444,51 @@ def test_clk_damaged(tmp_path):
     assert clk.clock_s.shape == (4, 1) and np.isnan(clk.clock_s[2, 0])
 
 
+def test_clk_implausible_records_are_refused_or_counted(tmp_path):
+    """Issue 23: a line cut inside a value, a clock or sigma beyond any broadcast clock field,
+    and records separated by tabs (read, not dropped); unknown record types warn with a count."""
+    line = _as("G01", 30, 1e-4)
+    for cut in (len(line) - 10, len(line) - 14):  # "0.3379862" / "0.33": sigma 0.34 s
+        damaged = CLK_HEAD + [_as("G01", 0, 1e-4), line[:cut]]
+        with pytest.raises(InputError, match=r"line 5.*not in E19.12 form"):
+            read_clk(write(tmp_path, damaged, "cut.clk"))
+    for bias, sigma in ((1.5e-1, "0.337986288247E-10"), (1e-4, "-0.100000000000E-10")):
+        text = _as("G01", 0, bias).rsplit(None, 1)[0] + "  " + sigma
+        with pytest.raises(InputError, match=r"line 4.*G01 clock .*expected \|bias\| <= 0.0625"):
+            read_clk(write(tmp_path, CLK_HEAD + [text], "big.clk"))
+    tabs = CLK_HEAD + [_as("G01", s, 1e-4).replace("  ", "\t") for s in (0, 30)]
+    clk = read_clk(write(tmp_path, tabs, "tabs.clk"))
+    np.testing.assert_array_equal(clk.clock_s[:, 0], [1e-4, 1e-4])
+    junk = CLK_HEAD + [_as("G01", 0, 1e-4), "XX junk", _as("G01", 30, 1e-4)]
+    with pytest.warns(UserWarning, match="ignoring 1 line.*first at line 5"):
+        assert read_clk(write(tmp_path, junk, "junk.clk")).clock_s.shape == (2, 1)
+
+
+def test_sp3_implausible_records_are_refused(tmp_path):
+    """Issue 23: a non-finite or off-orbit position, a clock beyond any broadcast clock field and
+    an impossible satellite ID are refused with their line (0.000000 stays 'bad sample')."""
+
+    def put(field_text, cols=(4, 18)):
+        def edit(lines):
+            lines[7] = lines[7][: cols[0]] + field_text + lines[7][cols[1] :]
+            return lines
+
+        return edit
+
+    for text, why in (
+        (f"{'Infinity':>14s}", "non-finite position or clock"),
+        (f"{'nan':>14s}", "non-finite position or clock"),
+        (f"{-9.99e99:14.6g}", "orbit radius 9.99e"),
+        (f"{100.0:14.6f}" * 3, "orbit radius 173.205 km"),  # inside the Earth
+    ):
+        with pytest.raises(InputError, match=rf"line 8, epoch .*{why}"):
+            read_sp3(write(tmp_path, sp3_text(edit=put(text, (4, 4 + len(text)))), "x.sp3"))
+    with pytest.raises(InputError, match=r"line 8.*clock offset 70000 us"):
+        read_sp3(write(tmp_path, sp3_text(edit=put(f"{70000.0:14.6f}", (46, 60))), "c.sp3"))
+    with pytest.raises(InputError, match=r"line 8.*impossible satellite ID 'G00'"):
+        read_sp3(write(tmp_path, sp3_text(edit=put("G 0", (1, 4))), "id.sp3"))
+
+
 # ------------------------------------------------------------------------------------------
 # IONEX
 

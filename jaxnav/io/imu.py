@@ -53,6 +53,11 @@ _ACCEL_UNITS = ("g", "m/s^2")
 # Device clocks are quartz or RC oscillators: a tick-rate error beyond 0.1 % means the tick is
 # not in ms or the tag belongs to another file (chosen bound; the drive log shows 13 ppm).
 _MAX_CLOCK_RATE_ERROR = 1e-3
+# Full-scale ranges of vehicle IMUs: MEMS parts +-2..16 g and +-125..2000 deg/s, tactical units
+# up to +-50 g. A reading past 100 g or 4000 deg/s is damage, not motion (chosen bounds, twice
+# the widest full scale).
+_MAX_ACCEL_G = 100.0
+_MAX_GYRO_DEG_S = 4000.0
 # A sample interval longer than this multiple of the median interval is reported as a gap.
 _GAP_FACTOR = 1.5
 
@@ -142,11 +147,31 @@ def read_timetag(path: str | PathLike, *, fpos_bytes: int = 4) -> TimeTag:
     return TimeTag(header, int(tick_f), float(start), tick, fpos)
 
 
-def _unwrap_uint32(tick: np.ndarray, path, what: str, modulus: int = 2**32) -> np.ndarray:
-    """Undo counter wrap-around: a step below -modulus/2 is a wrap, other decreases are errors."""
+def _unwrap_counter(tick: np.ndarray, modulus: int) -> tuple[np.ndarray, int | None]:
+    """Undo counter wrap-around: a step below -modulus/2 is a wrap.
+
+    Returns the unwrapped ticks and the index of the first tick after an impossible forward jump
+    (more than modulus/2, i.e. 24.8 days for a uint32 ms counter), or None. One damaged tick near
+    the top of the range (0xFFFFFFF0) would otherwise look like a wrap and shift every later
+    record by a whole modulus.
+    """
     d = np.diff(tick)
-    wraps = d < -modulus // 2
-    out = tick + modulus * np.concatenate([[0], np.cumsum(wraps)])
+    out = tick + modulus * np.concatenate([[0], np.cumsum(d < -modulus // 2)])
+    jump = np.flatnonzero(np.diff(out) > modulus // 2)
+    return out, (int(jump[0]) + 1 if jump.size else None)
+
+
+def _unwrap_uint32(tick: np.ndarray, path, what: str, modulus: int = 2**32) -> np.ndarray:
+    """Undo counter wrap-around (see ``_unwrap_counter``); decreases and jumps are errors."""
+    out, jump = _unwrap_counter(tick, modulus)
+    if jump is not None:
+        raise InputError(
+            f"{what} jumps forward by {int(out[jump] - out[jump - 1])} ({int(tick[jump - 1])} "
+            f"-> {int(tick[jump])})",
+            file=path,
+            record=jump,
+            expected=f"steps shorter than half the counter's range ({modulus // 2})",
+        )
     bad = np.flatnonzero(np.diff(out) < 0)
     if bad.size:
         raise InputError(
@@ -297,6 +322,23 @@ def read_imu_csv(
     tag = read_timetag(tag_path, fpos_bytes=fpos_bytes)
 
     values, lines, ends = _parse_lines(path, raw)
+    limits = (
+        _MAX_ACCEL_G * (1.0 if accel_unit == "g" else g0),
+        _MAX_GYRO_DEG_S * np.pi / 180.0 / _GYRO_UNITS[gyro_unit],
+    )
+    for cols, limit, what, unit in (
+        (slice(0, 3), limits[0], "acceleration", accel_unit),
+        (slice(3, 6), limits[1], "angular rate", gyro_unit),
+    ):
+        over = np.any(np.abs(values[:, cols]) > limit, axis=1)
+        if over.any():
+            k = int(np.flatnonzero(over)[0])
+            raise InputError(
+                f"{what} {values[k, cols].tolist()} {unit} beyond any IMU's full scale",
+                file=path,
+                line=int(lines[k]),
+                expected=f"|{what}| <= {limit:g} {unit} per axis",
+            )
     tick_raw = values[:, 6]
     if np.any(tick_raw != np.round(tick_raw)) or np.any(tick_raw < 0):
         k = int(np.flatnonzero((tick_raw != np.round(tick_raw)) | (tick_raw < 0))[0])
@@ -306,10 +348,15 @@ def read_imu_csv(
             line=int(lines[k]),
             expected="an integer millisecond tick",
         )
-    tick = tick_raw.astype(np.int64)
     # Undo the device counter wrap (a large negative step); then check ordering.
-    d = np.diff(tick)
-    tick = tick + tick_modulus * np.concatenate([[0], np.cumsum(d < -tick_modulus // 2)])
+    tick, jump = _unwrap_counter(tick_raw.astype(np.int64), tick_modulus)
+    if jump is not None:
+        raise InputError(
+            f"tick jumps forward by {int(tick[jump] - tick[jump - 1])} ms",
+            file=path,
+            line=int(lines[jump]),
+            expected=f"steps shorter than half the counter's range ({tick_modulus // 2} ms)",
+        )
     d = np.diff(tick)
     dup = np.flatnonzero((d == 0) & np.all(values[1:, :6] == values[:-1, :6], axis=1)) + 1
     if dup.size:

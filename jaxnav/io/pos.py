@@ -33,6 +33,12 @@ from jaxnav.io.errors import InputError
 
 Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP, Q_DR = 1, 2, 3, 4, 5, 6, 7  # RTKLIB SOLQ_*
 Q_OUTAGE = Q_DR
+# Plausibility bounds of a receiver's solution (values outside are damage, not positions):
+# ellipsoidal heights from below the lowest land (Dead Sea shore -430 m MSL, geoid >= -107 m)
+# to the edge of space (100 km); speeds up to the CoCom limit (1000 knots = 514 m/s) above
+# which GNSS receivers stop giving solutions.
+_HEIGHT_RANGE_M = (-1000.0, 100_000.0)
+_MAX_SPEED_MPS = 1000 * 1852.0 / 3600.0
 
 _BASE_COLS = (
     "lat", "lon", "height", "Q", "ns", "sdn", "sde", "sdu", "sdne", "sdeu", "sdun", "age", "ratio",
@@ -122,6 +128,34 @@ def _find_header(path: Path, lines: list[str]):
     system = cols[0]
     has_vel = "vn(m/s)" in cols
     return header_i, system, has_vel
+
+
+def _check_ranges(path: Path, data: np.ndarray, line_no: np.ndarray, has_vel: bool) -> None:
+    """Refuse values no receiver writes: see the bounds' comments at the top of the module."""
+    checks = [
+        (data[:, 2], _HEIGHT_RANGE_M, "height [m]"),
+        (data[:, 3], (0, Q_DR), "quality flag Q (RTKLIB 0-7)"),
+        (data[:, 4], (0, 999), "number of satellites"),
+        (data[:, 5:8], (0, np.inf), "sdn/sde/sdu [m]"),
+        (data[:, 11], (0, np.inf), "age [s]"),
+    ]
+    if has_vel:
+        checks += [
+            (data[:, 13:16], (-_MAX_SPEED_MPS, _MAX_SPEED_MPS), "velocity [m/s]"),
+            (data[:, 16:19], (0, np.inf), "sdvn/sdve/sdvu [m/s]"),
+        ]
+    for values, (lo, hi), what in checks:
+        bad = (values < lo) | (values > hi)
+        bad = bad.any(axis=1) if bad.ndim == 2 else bad
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            row = values[k] if values.ndim == 1 else values[k].tolist()
+            raise InputError(
+                f"{what} {row} out of range",
+                file=path,
+                line=int(line_no[k]),
+                expected=f"{lo:g} <= {what} <= {hi:g}",
+            )
 
 
 def read_pos(path: str | PathLike, *, leap_seconds: float | None = None) -> PosSolution:
@@ -228,6 +262,7 @@ def read_pos(path: str | PathLike, *, leap_seconds: float | None = None) -> PosS
             line=int(line_no[k]),
             expected="|lat| <= 90 deg, |lon| <= 360 deg",
         )
+    _check_ranges(path, data, line_no, has_vel)
     nan3 = np.full((t_gps.size, 3), np.nan)
     if has_vel:
         v = data[:, 13:22]

@@ -12,6 +12,7 @@ sample; ``gnss/interp.py`` packs them into JAX tables and interpolates them (re-
 
 from __future__ import annotations
 
+import re
 import warnings
 from collections.abc import Sequence
 from os import PathLike
@@ -41,6 +42,18 @@ from jaxnav.io.text import read_text
 _TIME_SYSTEM_TO_GPS_S = {"GPS": 0.0, "GAL": 0.0, "QZS": 0.0, "IRN": 0.0, "BDT": 14.0, "": 0.0}
 # SP3 marks a bad or absent clock with 999999.999999 us and a bad position with 0.000000 km.
 _SP3_BAD_CLOCK_US = 999999.0
+# SP3-d system letters (GPS, GLONASS, Galileo, BeiDou, QZSS, NavIC, SBAS, LEO).
+_SP3_SYSTEMS = "GRECJISL"
+# Plausible orbit radii [km]: above the Earth's equatorial radius (6378 km; LEO satellites in
+# SP3 fly at >= 6500 km) and below twice the geostationary radius (42164 km; the highest GNSS
+# orbits, BeiDou GEO/IGSO and QZSS QZO, are at most ~42200 km).
+_SP3_RADIUS_KM = (6378.137, 2 * 42164.0)
+# A broadcast satellite clock offset cannot exceed the widest ICD field: Galileo af0, 31 bits at
+# 2^-34 s (OS SIS ICD), +-2^-4 s = 62500 us.
+_MAX_CLOCK_OFFSET_US = 62500.0
+# RINEX clock data record types (3.04 Table A8) and the E19.12 value field.
+_CLK_RECORD_TYPES = ("AR", "AS", "CR", "DR", "MS")
+_CLK_VALUE = re.compile(r"[+-]?\d*\.\d+[EeDd][+-]?\d+")
 # Relative tolerance for "on the sampling grid".
 _GRID_TOL = 1e-6
 
@@ -78,6 +91,44 @@ class Sp3Orbit(NamedTuple):
     pos_ecef_m: np.ndarray  # [T, S, 3] ECEF (ITRF/IGS frame of the file) [m]
     clock_s: np.ndarray  # [T, S] satellite clock bias [s]
     frame: str  # coordinate frame label from the header, e.g. "IGb14"
+
+
+def _check_sp3_record(path: Path, line: int, epoch: str, sv: str, xyz_km, clk_us: float):
+    """Reject an impossible satellite ID, a non-finite value or a position off every orbit."""
+    if sv[0] not in _SP3_SYSTEMS or sv[1:] == "00":
+        raise InputError(
+            f"impossible satellite ID {sv!r}",
+            file=path,
+            line=line,
+            epoch=epoch,
+            expected=f"a system letter of {_SP3_SYSTEMS!r} and a number 01-99",
+        )
+    if not (np.all(np.isfinite(xyz_km)) and np.isfinite(clk_us)):
+        raise InputError(
+            f"{sv}: non-finite position or clock",
+            file=path,
+            line=line,
+            epoch=epoch,
+            expected="finite numbers (0.000000 km / 999999.999999 us mark a bad sample)",
+        )
+    r_km = float(np.linalg.norm(xyz_km))
+    if r_km != 0.0 and not _SP3_RADIUS_KM[0] <= r_km <= _SP3_RADIUS_KM[1]:
+        raise InputError(
+            f"{sv}: orbit radius {r_km:.6g} km",
+            file=path,
+            line=line,
+            epoch=epoch,
+            expected=f"a satellite between {_SP3_RADIUS_KM[0]:g} and {_SP3_RADIUS_KM[1]:g} km "
+            "from the geocentre (0.000000 marks a bad position)",
+        )
+    if abs(clk_us) < _SP3_BAD_CLOCK_US and abs(clk_us) > _MAX_CLOCK_OFFSET_US:
+        raise InputError(
+            f"{sv}: clock offset {clk_us:.6g} us",
+            file=path,
+            line=line,
+            epoch=epoch,
+            expected=f"|clock| <= {_MAX_CLOCK_OFFSET_US:g} us (999999.999999 marks a bad clock)",
+        )
 
 
 def _read_sp3_one(path: Path):
@@ -163,6 +214,7 @@ def _read_sp3_one(path: Path):
                     epoch=str(epochs[-1]),
                     expected="'Psnn' + 4 x F14.6 (x, y, z km, clock us)",
                 ) from exc
+            _check_sp3_record(path, i + 1, str(epochs[-1]), sv, (x, y_, z), clk)
             recs.append((len(epochs) - 1, sv, x, y_, z, clk))
         elif line.startswith("EOF"):
             ended = True
@@ -298,11 +350,25 @@ def read_clk(path: str | PathLike, *, systems: set[str] | None = None) -> ClockT
     svs, t_list, vals, sigs, line_no = [], [], [], [], []
     epoch_cache: dict[str, float] = {}
     shift = _TIME_SYSTEM_TO_GPS_S[tsys]
-    for i in range(end + 1, len(lines)):
+    unknown: list[int] = []
+    i = end
+    while i + 1 < len(lines):
+        i += 1
         line = lines[i]
-        if not line.startswith("AS "):
+        kind = line[:2]
+        if kind in _CLK_RECORD_TYPES and line[2:3].isspace():
+            parts = line.split()
+            n_val = int(parts[8]) if len(parts) > 8 and parts[8].isdigit() else 0
+            if n_val > 2 and i + 1 < len(lines):  # values 3-6 are on a continuation line
+                i += 1
+                parts = parts + lines[i].split()
+        elif line.strip():
+            unknown.append(i + 1)
             continue
-        parts = line.split()
+        else:
+            continue
+        if kind != "AS":
+            continue
         try:
             sv = parts[1]
             if systems is not None and sv[0] not in systems:
@@ -316,8 +382,11 @@ def read_clk(path: str | PathLike, *, systems: set[str] | None = None) -> ClockT
                 t = float(datetime64_to_gps_seconds(t64 + np.timedelta64(ns, "ns"))) + shift
                 epoch_cache[key] = t
             n_val = int(parts[8])
-            if len(parts) < 9 + n_val or n_val < 1:
+            if len(parts) != 9 + n_val or not 1 <= n_val <= 6:
                 raise ValueError(f"{n_val} values declared, {len(parts) - 9} present")
+            bad = [v for v in parts[9:] if not _CLK_VALUE.fullmatch(v)]
+            if bad:  # a line cut inside a value still parses as a (wrong) number
+                raise ValueError(f"value {bad[0]!r} is not in E19.12 form")
             bias = float(parts[9].replace("D", "E"))
             sig = float(parts[10].replace("D", "E")) if n_val >= 2 else np.nan
         except (ValueError, IndexError) as exc:
@@ -327,11 +396,26 @@ def read_clk(path: str | PathLike, *, systems: set[str] | None = None) -> ClockT
                 line=i + 1,
                 expected="'AS sat yyyy mm dd hh mm ss.ssssss n bias [sigma]'",
             ) from exc
+        limit_s = _MAX_CLOCK_OFFSET_US * 1e-6
+        if not (abs(bias) <= limit_s and (np.isnan(sig) or 0 <= sig <= limit_s)):
+            raise InputError(
+                f"{sv} clock {bias:.6g} s, sigma {sig:.6g} s",
+                file=path,
+                line=i + 1,
+                expected=f"|bias| <= {limit_s:g} s (the widest broadcast clock field) "
+                "and 0 <= sigma <= that",
+            )
         svs.append(sv)
         t_list.append(t)
         vals.append(bias)
         sigs.append(sig)
         line_no.append(i + 1)
+    if unknown:
+        warnings.warn(
+            f"{path}: ignoring {len(unknown)} line(s) of no clock record type "
+            f"{'/'.join(_CLK_RECORD_TYPES)}, first at line {unknown[0]}",
+            stacklevel=2,
+        )
     if not svs:
         raise InputError("no satellite clock (AS) records", file=path, expected="AS records")
     t_gps = np.array(t_list)
