@@ -31,7 +31,12 @@ DEMO_STUDY = {
 def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool) -> int:
     from jaxnav.study import report, sweep
 
-    result = sweep.run_sweep(cfg, factory, out, resume=resume, overwrite=overwrite)
+    try:  # the folder's state (existing result, other study, damaged files) is checked first
+        result = sweep.run_sweep(cfg, factory, out, resume=resume, overwrite=overwrite)
+    except (FileExistsError, sweep.StoreError) as e:
+        text = str(e).replace("overwrite=True", "--overwrite").replace("resume=True", "--resume")
+        print(f"jaxnav: {text}", file=sys.stderr)
+        return 2
     paths = report.write_report(result.dataset, out, overwrite=True)
     print(report.markdown_by_satellites(report.table_by_satellites(result.dataset)))
     stats = result.stats
@@ -143,6 +148,8 @@ def main(argv=None) -> int:
     if argv and argv[0] in ("ppp", "lc", "ins"):  # their own parsers take every remaining argument
         return importlib.import_module(f"jaxnav.apps.{argv[0]}").main(argv[1:])
     args = parser.parse_args(argv)
+    if getattr(args, "resume", False) and getattr(args, "overwrite", False):
+        parser.error("--resume reuses what --out holds and --overwrite discards it: pass one")
     return args.func(args)
 
 

@@ -59,7 +59,7 @@ def test_invalid_config_is_rejected_before_any_work(tmp_path, capsys, old, new, 
     assert not out.exists()
 
 
-def test_tiny_sweep_writes_results_tables_and_plots(tmp_path, goldens):
+def test_tiny_sweep_writes_results_tables_and_plots(tmp_path, goldens, capsys):
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(TINY)
     out = tmp_path / "out"
@@ -71,9 +71,15 @@ def test_tiny_sweep_writes_results_tables_and_plots(tmp_path, goldens):
     assert float(worst) > float(best)  # a complete outage is worse than none
     assert (out / "table.md").read_text().count("|") > 10
     goldens.check("tiny_sweep", goldens.numbers_in(out))  # refactors keep the numbers
-    # An existing result is never silently overwritten.
-    with pytest.raises(Exception, match="exist|overwrite"):
-        cli.main(["sweep", str(cfg), "--out", str(out)])
+    # An existing result is never silently overwritten: one line, exit 2 (issue 23: it was a
+    # traceback), and --resume with --overwrite is refused by the parser.
+    capsys.readouterr()
+    assert cli.main(["sweep", str(cfg), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "results.nc exists; pass --overwrite" in err, err
+    with pytest.raises(SystemExit) as e:
+        cli.main(["sweep", str(cfg), "--out", str(out), "--resume", "--overwrite"])
+    assert e.value.code == 2 and "pass one" in capsys.readouterr().err
 
 
 @pytest.mark.heavy

@@ -489,7 +489,7 @@ def test_killed_sweep_resumes_to_an_identical_dataset(main_run, background):
     again = sw.run_sweep(cfg, ToyFactory(), out, resume=True, progress=False)
     assert again.stats["chunks_computed"] == 0
     xr.testing.assert_identical(again.dataset, sw.load_results(fresh.path))
-    with pytest.raises(ValueError, match="not both"):
+    with pytest.raises(sw.StoreError, match="not both"):
         sw.run_sweep(cfg, ToyFactory(), out, resume=True, overwrite=True, progress=False)
     redo = sw.run_sweep(cfg, ToyFactory(), out, overwrite=True, progress=False)
     assert redo.stats["chunks_computed"] == n_chunks
@@ -715,3 +715,68 @@ def test_resume_refuses_chunks_of_other_jaxnav_code(main_run, tmp_path):
     manifest_path.write_text(json.dumps(manifest))
     with pytest.raises(FileExistsError, match="other jaxnav code"):
         sw.run_sweep(cfg, ToyFactory(), out, resume=True, progress=False)
+
+
+def test_damaged_store_is_explained_before_any_work(tmp_path):
+    """Issue 23: on resume every existing chunk is checked before any is computed (a zero-length
+    or foreign chunk is named at once); a truncated results.nc is rebuilt from complete chunks;
+    a truncated manifest.json is rewritten when every chunk is this study's, else refused."""
+    import shutil
+
+    factory = ToyFactory()
+    cfg = toy_config(modes=["toy_a"], realizations=1, satellites_kept=[0, "all"])
+    fresh = sw.run_sweep(cfg, factory, tmp_path / "fresh", progress=False)
+    n_chunks = len(list((tmp_path / "fresh" / sw.CHUNK_DIR).glob("*.npz")))
+    assert n_chunks >= 2
+
+    def partial(name):  # a copy killed after its first chunk
+        out = tmp_path / name
+        shutil.copytree(tmp_path / "fresh", out)
+        (out / sw.RESULTS_FILE).unlink()
+        for p in sorted((out / sw.CHUNK_DIR).glob("*.npz"))[1:]:
+            p.unlink()
+        return out
+
+    computed = []
+    zero = partial("zero")
+    first = sorted((zero / sw.CHUNK_DIR).glob("*.npz"))[0]
+    first.write_bytes(b"")
+    with pytest.raises(sw.StoreError, match=rf"{first.name}: cannot read the chunk.*delete it"):
+        sw.run_sweep(cfg, factory, zero, resume=True, progress=False,
+                     on_chunk=lambda g, j: computed.append((g, j)))
+    assert computed == []  # found before any work
+
+    other = toy_config(modes=["toy_a"], realizations=1, satellites_kept=[0, 1, "all"])
+    sw.run_sweep(other, factory, tmp_path / "other", progress=False)
+    foreign = partial("foreign")
+    victim = sorted((foreign / sw.CHUNK_DIR).glob("*.npz"))[0]
+    shutil.copy(tmp_path / "other" / sw.CHUNK_DIR / victim.name, victim)
+    with pytest.raises(sw.StoreError, match=rf"{victim.name}: not chunk 0 of group 0"):
+        sw.run_sweep(cfg, factory, foreign, resume=True, progress=False)
+
+    trunc = tmp_path / "trunc"
+    shutil.copytree(tmp_path / "fresh", trunc)
+    nc = trunc / sw.RESULTS_FILE
+    nc.write_bytes(nc.read_bytes()[:200])
+    with pytest.warns(UserWarning, match="unreadable.*rebuilding it from its chunks"):
+        rebuilt = sw.run_sweep(cfg, factory, trunc, resume=True, progress=False)
+    assert rebuilt.stats["chunks_computed"] == 0
+    xr.testing.assert_identical(sw.load_results(nc), sw.load_results(fresh.path))
+    nc.write_bytes(nc.read_bytes()[:200])
+    next(iter((trunc / sw.CHUNK_DIR).glob("*.npz"))).unlink()
+    with pytest.raises(sw.StoreError, match="unreadable.*1 chunk\\(s\\) are missing"):
+        sw.run_sweep(cfg, factory, trunc, resume=True, progress=False)
+
+    cut = partial("cut")
+    manifest = cut / sw.MANIFEST_FILE
+    manifest.write_text(manifest.read_text()[:50])
+    with pytest.warns(UserWarning, match="manifest.json is damaged.*written again"):
+        resumed = sw.run_sweep(cfg, factory, cut, resume=True, progress=False)
+    assert resumed.stats["chunks_reused"] == 1
+    xr.testing.assert_identical(sw.load_results(resumed.path), sw.load_results(fresh.path))
+    mixed = partial("mixed")
+    shutil.copy(tmp_path / "other" / sw.CHUNK_DIR / victim.name,
+                sorted((mixed / sw.CHUNK_DIR).glob("*.npz"))[0])
+    (mixed / sw.MANIFEST_FILE).write_text("{")
+    with pytest.raises(sw.StoreError, match="damaged.*do not all carry this study's hash"):
+        sw.run_sweep(cfg, factory, mixed, resume=True, progress=False)

@@ -31,6 +31,10 @@ _UNITS = {
 # ----------------------------------------------------------------------------------------------
 # Persistence
 # ----------------------------------------------------------------------------------------------
+class StoreError(OSError):
+    """A sweep folder that cannot be used as asked; the message names the file and what to do."""
+
+
 class _Store:
     """OUT/manifest.json, OUT/chunks/g###_c######.npz and OUT/results.nc."""
 
@@ -56,7 +60,10 @@ class _Store:
     def prepare(self, resume: bool, overwrite: bool) -> bool:
         """Apply the overwrite / resume rules; True when a finished result can be reused."""
         if resume and overwrite:
-            raise ValueError("pass either resume=True or overwrite=True, not both")
+            raise StoreError(
+                "pass either resume (reuse what the folder holds) or overwrite (discard it), "
+                "not both"
+            )
         have_results = self.results.exists()
         have_partial = self.manifest_path.exists() or bool(self._chunk_files())
         if overwrite:
@@ -78,7 +85,7 @@ class _Store:
                     f"{self.dir} has sweep files but no {MANIFEST_FILE}; cannot tell which "
                     f"study they belong to: use another directory or overwrite=True"
                 )
-            old = json.loads(self.manifest_path.read_text())
+            old = self._read_manifest()
             new_src = self.manifest.get("jaxnav_source")
             if old.get("config_hash") != self.hash and old.get("config") == self.manifest.get(
                 "config"
@@ -110,6 +117,53 @@ class _Store:
             _atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
         return False
 
+    def _read_manifest(self) -> dict:
+        """The folder's manifest; a damaged one is rebuilt when every chunk is this study's."""
+        try:
+            old = json.loads(self.manifest_path.read_text())
+            if not isinstance(old, dict):
+                raise ValueError(f"a JSON {type(old).__name__}, not an object")
+            return old
+        except (OSError, UnicodeDecodeError, ValueError) as e:
+            reason = f"{type(e).__name__}: {e}"
+        hashes = {self._chunk_hash(p) for p in self._chunk_files()}
+        if hashes == {self.hash}:
+            warnings.warn(
+                f"{self.manifest_path} is damaged ({reason}); every chunk file belongs to this "
+                "study, so the manifest is written again",
+                stacklevel=4,
+            )
+            _atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
+            return dict(self.manifest)
+        raise StoreError(
+            f"{self.manifest_path}: damaged ({reason}) and the chunk files do not all carry this "
+            "study's hash, so which study the folder holds cannot be told: use another "
+            "directory or --overwrite"
+        )
+
+    @staticmethod
+    def _chunk_hash(path: Path) -> str | None:
+        try:
+            with np.load(path) as z:
+                return str(z["config_hash"])
+        except Exception:  # noqa: BLE001  (any damage: the caller reports the file)
+            return None
+
+    def verify(self, sizes: dict[tuple[int, int], int]) -> None:
+        """Check every existing chunk before any work: this study's, in its plan, readable.
+
+        ``sizes`` maps (group, chunk) of the plan to its number of scenarios. A damaged or
+        foreign chunk is reported with its file now, not after the missing ones are computed.
+        """
+        for g, j in sorted(self.done()):
+            if (g, j) not in sizes:
+                raise StoreError(
+                    f"{self.chunk_path(g, j)}: chunk {j} of group {g} is not in this study's plan "
+                    f"({len({k[0] for k in sizes})} groups x "
+                    f"{1 + max(k[1] for k in sizes)} chunks); remove it or use --overwrite"
+                )
+            self.read_chunk(g, j, sizes[(g, j)])
+
     def done(self) -> set[tuple[int, int]]:
         out = set()
         for p in self._chunk_files():
@@ -134,11 +188,21 @@ class _Store:
             with np.load(path) as z:
                 data = {k: z[k] for k in z.files}
         except Exception as e:  # a corrupt file must not be silently skipped
-            raise OSError(f"{path}: cannot read the chunk ({e}); delete it and resume") from e
-        if str(data["config_hash"]) != self.hash or int(data["group"]) != g or int(
-            data["chunk"]
-        ) != j or data["max_2d_m"].shape[0] != n:
-            raise OSError(f"{path}: expected chunk {j} of group {g} of study {self.hash[:12]}")
+            raise StoreError(
+                f"{path}: cannot read the chunk ({type(e).__name__}: {e}); delete it and resume "
+                "(it is computed again)"
+            ) from e
+        try:
+            ok = (str(data["config_hash"]) == self.hash and int(data["group"]) == g
+                  and int(data["chunk"]) == j and data["max_2d_m"].shape[0] == n
+                  and all(k in data for k in METRIC_FIELDS))
+        except (KeyError, TypeError, ValueError, IndexError):
+            ok = False
+        if not ok:
+            raise StoreError(
+                f"{path}: not chunk {j} of group {g} of this study ({self.hash[:12]}, {n} "
+                "scenarios); delete it and resume (it is computed again)"
+            )
         return data
 
 

@@ -55,6 +55,7 @@ import functools
 import hashlib
 import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -95,6 +96,7 @@ from jaxnav.study.store import (  # noqa: F401  (re-exported)
     MANIFEST_FILE,
     METRIC_FIELDS,
     RESULTS_FILE,
+    StoreError,
     _Store,
     assemble,
     load_results,
@@ -339,11 +341,32 @@ def run_sweep(
         "max_realizations_held": 0, "window_epochs": plan.window,
         "checkpoints": int(plan.ckpt_epochs.size),
     }
+    sizes = {
+        (g, j): min(cfg.chunk_size, plan.n_per_group - j * cfg.chunk_size)
+        for g in range(len(groups)) for j in range(plan.n_chunks)
+    }
     if store.prepare(resume, overwrite):
-        ds = load_results(store.results)
-        stats["chunks_reused"] = len(groups) * plan.n_chunks
-        stats["wall_s"] = time.perf_counter() - t_wall
-        return SweepResult(ds, store.results, stats)
+        try:
+            ds = load_results(store.results)
+        except Exception as e:  # noqa: BLE001  (a truncated or foreign results.nc)
+            store.verify(sizes)
+            if store.done() != set(sizes):
+                raise StoreError(
+                    f"{store.results}: unreadable ({type(e).__name__}) and "
+                    f"{len(set(sizes) - store.done())} chunk(s) are missing, so it cannot be "
+                    "rebuilt: delete it and resume, or use --overwrite"
+                ) from e
+            warnings.warn(
+                f"{store.results} is unreadable ({type(e).__name__}: {e}); rebuilding it from "
+                "its chunks",
+                stacklevel=2,
+            )
+            store.results.unlink()
+        else:
+            stats["chunks_reused"] = len(groups) * plan.n_chunks
+            stats["wall_s"] = time.perf_counter() - t_wall
+            return SweepResult(ds, store.results, stats)
+    store.verify(sizes)  # a damaged chunk is reported now, not after hours of work
     done = store.done()
     n_done = sum(
         min(plan.cfg.chunk_size, plan.n_per_group - j * plan.cfg.chunk_size) for _, j in done
