@@ -314,13 +314,12 @@ def main(argv=None) -> int:
         f"{spread}. The height is the slowest PPP state (correlated with the ZWD and the "
         "clock) and the spread between realisations says it has not converged within the "
         "run: the simulator's code multipath is a 30-s Gauss-Markov process (0.2 m at zenith "
-        "per band, ~0.6 m after the ionosphere-free combination) that the filter weights as "
-        "white 0.5 m noise, so the first minutes lock ambiguities, ZWD and height onto a "
-        "multipath-biased solution that later epochs pull back only slowly (a diagnostic run "
-        "outside this script, airborne realisation 0: ZWD estimate -0.06 m vs a true 0.09 m "
-        "at 890 s with a filter sigma of 0.026 m, height +1.1 m; with the code sigma raised "
-        "to 2 m the same run ends at +0.4 m). S001's decimetre heights come from 1.6 h runs "
-        "with real, lower multipath.",
+        "per band, ~0.6 m after the ionosphere-free combination) that the filter weights by "
+        "its white-equivalent variance (docs/models.md); the weight is right on average, but "
+        "an error correlated over 30 s still moves the first minutes' solution coherently, "
+        "and the height, the ZWD and the clock, which the geometry separates only slowly, "
+        "keep that offset longest. S001's decimetre heights come from 1.6 h runs with real, "
+        "lower multipath.",
         "",
     ]
     sections.append(("Full availability (S001 Tables 2 and 4)", "\n".join(text)))
