@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import gzip
+import re
 import warnings
 from pathlib import Path
 
@@ -390,3 +391,56 @@ def test_rinex_requests_ask_each_code_once_and_both_l1_codes_for_p1c1():
             assert len(codes) == len(set(codes)), (freq, letter, codes)
         assert {"C1W", "C1C"} <= set(req["G"]) and {"C1P", "C1C"} <= set(req["R"])
     assert rinex_requests("dual", ("G",)) == {"G": ("C1W", "C2W", "L1C", "L2W", "D1C")}
+
+
+def _gps_cut(n_sats=8) -> tuple[list[str], list[list[str]]]:
+    """Header and the first record of ``n_sats`` GPS satellites of the ESBC navigation file."""
+    lines = gzip.decompress(NAV.read_bytes()).decode().splitlines()
+    end = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln) + 1
+    records, seen = [], set()
+    for i in range(end, len(lines)):
+        if lines[i][:1] == "G" and lines[i][:3] not in seen:
+            seen.add(lines[i][:3])
+            records.append(lines[i : i + 8])
+        if len(records) == n_sats:
+            break
+    return lines[:end], records
+
+
+@pytest.mark.parametrize("damage, n_read, warned", [
+    ("none", 8, None),
+    ("junk inside record 3", 7, "1 damaged navigation record.*line {r3} .*continuation line 2"),
+    ("three blank lines", 8, "3 blank line"),
+    ("Infinity in record 5", 7, "line {r5} .*G.. record: field 'Infinity' is not a finite"),
+    ("junk between records", 8, "not a record's epoch line: 'junk'"),
+    ("truncated last record", 7, "truncated: 4 of 7 continuation lines"),
+])
+def test_navigation_records_are_read_or_reported(tmp_path, damage, n_read, warned):
+    """Issue 23: one junk line made georinex turn a whole GPS record into NaN and three blank
+    lines turned 8 satellites into 1, silently; now every record is read or reported."""
+    _need(NAV)
+    head, recs = _gps_cut()
+    body = [list(r) for r in recs]
+    if damage == "junk inside record 3":
+        body[2].insert(2, "junk")
+    elif damage == "three blank lines":
+        body[3] = ["", "", ""] + body[3]
+    elif damage == "Infinity in record 5":
+        body[4][2] = body[4][2][:4] + f"{'Infinity':>19s}" + body[4][2][23:]
+    elif damage == "junk between records":
+        body[5] = ["junk"] + body[5]
+    elif damage == "truncated last record":
+        body[-1] = body[-1][:5]
+    p = tmp_path / "cut.rnx"
+    p.write_text("\n".join(head + [ln for r in body for ln in r]) + "\n")
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        nav = read_rinex_nav(p, use={"G"})
+    msgs = " ".join(str(w.message) for w in rec if not issubclass(w.category, FutureWarning))
+    sqrt_a = nav["sqrtA"].values
+    assert int(np.isfinite(sqrt_a).sum()) == n_read, msgs
+    if warned is None:
+        assert msgs == ""
+    else:
+        where = {"r3": len(head) + 2 * 8 + 1, "r5": len(head) + 4 * 8 + 1}
+        assert re.search(warned.format(**where), msgs), msgs

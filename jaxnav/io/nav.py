@@ -17,6 +17,7 @@ from __future__ import annotations
 import datetime as _dt
 import io
 import math
+import re
 import warnings
 from os import PathLike
 from pathlib import Path
@@ -83,15 +84,101 @@ def _patch_nav_text(text: str) -> str:
     return "\n".join(out) + "\n"
 
 
+_RECORD_START = re.compile(r"[A-Z]\d\d \d{4}( [ \d]\d){5}")
+
+
+def _field_ok(text: str) -> bool:
+    """A 19-character RINEX field: blank, or a finite Fortran number (D or E exponent)."""
+    t = text.strip()
+    if not t:
+        return True
+    try:
+        return math.isfinite(float(t.replace("D", "E").replace("d", "e")))
+    except ValueError:
+        return False
+
+
+def _screen_records(lines: list[str], start: int, use, version: float) -> tuple[list[str], dict]:
+    """Check every RINEX 3 record after the header (line ``start``) before georinex reads it.
+
+    A record is its epoch line and the continuation lines its system has (``_NAV_LINES``),
+    each field blank or a finite number. A damaged record (junk or a blank line inside it, a
+    field that is no number, a truncated last record) is dropped and counted with its line and
+    reason; the scan resumes at the next epoch line. Blank lines between records are counted.
+    Returns the kept body lines and the accounting {system: kept, "rejected": [(line, why)],
+    "blank": n}.
+    """
+    kept: list[str] = []
+    tally: dict = {"rejected": [], "blank": 0, "skipped": 0}
+    i = start
+    while i < len(lines):
+        line = lines[i]
+        if not line.strip():
+            tally["blank"] += 1
+            i += 1
+            continue
+        sys_letter = line[:1]
+        if not _RECORD_START.match(line) or sys_letter not in _NAV_LINES:
+            tally["rejected"].append((i + 1, f"not a record's epoch line: {line[:30]!r}"))
+            i += 1
+            while i < len(lines) and not _RECORD_START.match(lines[i]):
+                i += 1
+            continue
+        # RINEX 3.05 added a fourth GLONASS line (status flags, group delay, accuracy)
+        n = 4 if sys_letter == "R" and version >= 3.05 else _NAV_LINES[sys_letter]
+        record = lines[i : i + 1 + n]
+        why = None
+        if len(record) < 1 + n:
+            why = f"truncated: {len(record) - 1} of {n} continuation lines"
+        else:
+            for k, cont in enumerate(record[1:], 1):
+                if _RECORD_START.match(cont) or not cont.startswith("    "):
+                    why = f"continuation line {k} of {n} is {cont[:30]!r}"
+                    break
+            fields = [record[0][23 + 19 * j : 42 + 19 * j] for j in range(3)] + [
+                c[4 + 19 * j : 23 + 19 * j] for c in record[1:] for j in range(4)
+            ]
+            if why is None and not all(_field_ok(f) for f in fields):
+                bad = next(f for f in fields if not _field_ok(f))
+                why = f"field {bad.strip()!r} is not a finite number"
+        if why is None:
+            if use is None or sys_letter in use:
+                tally[sys_letter] = tally.get(sys_letter, 0) + 1
+            else:
+                tally["skipped"] += 1
+            kept.extend(record)
+            i += 1 + n
+        else:
+            tally["rejected"].append((i + 1, f"{line[:3]} record: {why}"))
+            i += 1
+            while i < len(lines) and not _RECORD_START.match(lines[i]):
+                i += 1
+    return kept, tally
+
+
+def _records_read(ds) -> int:
+    """Records georinex returned: (time, satellite column) cells with any finite value."""
+    cells = None
+    for v in ds.data_vars.values():
+        finite = np.isfinite(np.asarray(v.values, dtype=float))
+        cells = finite if cells is None else cells | finite
+    return 0 if cells is None else int(cells.sum())
+
+
 def _load(path: Path, use, tlim):
     """(georinex Dataset, header labels) of a navigation file (see :func:`read_rinex_nav`)."""
     import georinex as gr
 
     path = Path(path)
-    text = _patch_nav_text(_read_text(path))
-    lines = text.splitlines()
-    hdr, _ = _header(path, lines)
+    raw_lines = _read_text(path).splitlines()
+    hdr, _ = _header(path, raw_lines)
     version, ftype = _version_type(path, hdr)
+    tally = None
+    if version >= 3 and ftype in ("N", "G", "H", "L"):
+        end = next(i for i, ln in enumerate(raw_lines) if "END OF HEADER" in ln) + 1
+        body, tally = _screen_records(raw_lines, end, use, version)
+        raw_lines = raw_lines[:end] + body
+    text = _patch_nav_text("\n".join(raw_lines) + "\n")
     if ftype not in ("N", "G", "H", "L"):
         raise InputError(
             f"file type {ftype!r} is not navigation data",
@@ -111,10 +198,36 @@ def _load(path: Path, use, tlim):
             ) from exc
     if ds.sizes.get("time", 0) == 0 or ds.sizes.get("sv", 0) == 0:
         raise InputError("no navigation records", file=path, expected="records for " + str(use))
+    if tally is not None:
+        _account(path, ds, tally, tlim)
     t = ds.time.values.astype("datetime64[ns]")
     if np.any(np.diff(t) < np.timedelta64(0, "ns")):
         ds = ds.sortby("time")
     return ds, hdr
+
+
+def _account(path: Path, ds, tally: dict, tlim) -> None:
+    """Every record parsed or reported: rejected records and blank lines are warned with a
+    count and the first line; georinex returning fewer records than were kept is an error."""
+    rejected = tally["rejected"]
+    if rejected:
+        line, why = rejected[0]
+        warnings.warn(
+            f"{path}: {len(rejected)} damaged navigation record(s) dropped, the first at line "
+            f"{line} ({why})",
+            stacklevel=4,
+        )
+    if tally["blank"]:
+        warnings.warn(f"{path}: {tally['blank']} blank line(s) between records ignored",
+                      stacklevel=4)
+    kept = sum(v for k, v in tally.items() if len(k) == 1)
+    got = _records_read(ds)
+    if tlim is None and got < kept:
+        raise InputError(
+            f"georinex read {got} of the {kept} navigation records that passed the checks",
+            file=path,
+            expected="every well-formed record read (a georinex limitation: report it)",
+        )
 
 
 def read_rinex_nav(
