@@ -28,11 +28,12 @@ DEMO_STUDY = {
 }
 
 
-def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool) -> int:
+def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool, force: bool = False) -> int:
     from jaxnav.study import report, sweep
 
     try:  # the folder's state (existing result, other study, damaged files) is checked first
-        result = sweep.run_sweep(cfg, factory, out, resume=resume, overwrite=overwrite)
+        result = sweep.run_sweep(cfg, factory, out, resume=resume, overwrite=overwrite,
+                                 force=force)
     except (FileExistsError, sweep.StoreError) as e:
         text = str(e).replace("overwrite=True", "--overwrite").replace("resume=True", "--resume")
         print(f"jaxnav: {text}", file=sys.stderr)
@@ -74,7 +75,7 @@ def _sweep(args) -> int:
         print(f"jaxnav sweep: invalid study: {e}", file=sys.stderr)
         return 2
     try:
-        return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite)
+        return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite, args.force)
     except config.ConfigError as e:  # found when the plan turns seconds into epochs
         print(f"jaxnav sweep: invalid study: {args.config}: {e}", file=sys.stderr)
         return 2
@@ -128,6 +129,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--resume", action="store_true", help="reuse completed chunks in --out")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result")
+    p.add_argument("--force", action="store_true",
+                   help="run a study whose memory estimate exceeds the memory available")
     p.set_defaults(func=_sweep)
 
     p = sub.add_parser("list", help="what the registries hold: PPP modes, systems, presets")

@@ -41,6 +41,22 @@ TINY = textwrap.dedent(
      ["scenario.constellations[1] = 'beidu'", "'galileo'"]),
     ('constellations = ["gps"]', 'source = "recorded"', ["scenario.source = 'recorded'",
                                                          "'replay'"]),
+    # issue 23: studies that hung or asked XLA for tens of GB, refused before any work
+    ("realizations = 1", "realizations = 1000000000",
+     ["study.realizations = 1000000000", "<= 1,000,000"]),
+    ("chunk_size = 8", "chunk_size = 1000000000", ["study.chunk_size = 1000000000", "<= 4,096"]),
+    ("duration_s = 240", "duration_s = 1e7",
+     ["needs about", "GB are available: lower scenario.duration_s", "--force"]),
+    # issue 23: accepted nonsense, now refused with its key
+    ('satellites_kept = [0, "all"]', "satellites_kept = [1000]",
+     ["study.satellites_kept = 1000", "16 satellite slots"]),
+    ("spacing_s = 40", "spacing_s = 40\nmin_spacing_s = 30",
+     ["placement.min_spacing_s = 30", "used only by kind 'random' and 'events'"]),
+    ('kind = "grid"', 'kind = "random"\ncount = 1000000',
+     ["placement.spacing_s = 40", "used only by kind 'grid'"]),
+    ('kind = "grid"\nconvergence_s = 120\nspacing_s = 40',
+     'kind = "random"\nconvergence_s = 120\ncount = 1000000',
+     ["count = 1000000 placements, but only 91 start epochs"]),
     # found when the plan turns seconds into epochs, still before any scenario runs
     ("spacing_s = 40", "spacing_s = 40\n\n[metrics]\npre_s = 0.5",
      ["metrics.pre_s = 0.5", "whole number"]),

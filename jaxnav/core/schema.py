@@ -56,12 +56,14 @@ def number(lo: float | None = None, *, strict: bool = False, unit: str = "",
     return rule
 
 
-def whole(lo: int = 0) -> Rule:
-    """A whole number >= ``lo`` (booleans and floats such as 2.5 or 3.0 are refused)."""
-    what = f"a whole number >= {lo}"
+def whole(lo: int = 0, hi: int | None = None, why: str = "") -> Rule:
+    """A whole number >= ``lo`` (and <= ``hi``; ``why`` says where the bound comes from);
+    booleans and floats such as 2.5 or 3.0 are refused."""
+    what = f"a whole number >= {lo}" + (f" and <= {hi:,}" if hi is not None else "")
+    what += f" ({why})" if why else ""
 
     def rule(v):
-        if not isinstance(v, int) or isinstance(v, bool) or v < lo:
+        if not isinstance(v, int) or isinstance(v, bool) or v < lo or (hi is not None and v > hi):
             raise Invalid(what)
         return v
 

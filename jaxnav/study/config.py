@@ -148,6 +148,8 @@ class StudyConfig:
 # Loading and validation
 # ----------------------------------------------------------------------------------------------
 _SECTIONS = ("study", "placement", "metrics", "scenario")
+MAX_REALIZATIONS = 1_000_000  # chosen bound (see the rule below)
+MAX_CHUNK = 4096  # benchmarks/RESULTS.md: batch_max 4096 (per-scenario time flat beyond ~16)
 
 
 def _jsonable(x):
@@ -201,8 +203,9 @@ _PLACEMENT_SCHEMA = {
     "file": schema.text(),
 }
 #: placement keys that only one kind uses
-_PLACEMENT_USED_BY = {"spacing_s": "grid", "count": "random", "file": "schedule",
-                      "events": "events", "max_per_event": "events", "min_event_s": "events"}
+_PLACEMENT_USED_BY = {"spacing_s": ("grid",), "count": ("random",), "file": ("schedule",),
+                      "events": ("events",), "max_per_event": ("events",),
+                      "min_event_s": ("events",), "min_spacing_s": ("random", "events")}
 _METRICS_SCHEMA = {
     "reconv_threshold_m": _METRES,
     "reconv_factor": schema.number(0),
@@ -220,10 +223,12 @@ def _study_schema(modes, systems) -> dict[str, schema.Rule]:
         "satellites_kept": schema.items(_KEPT),
         "policies": schema.items(schema.choice(outages.POLICIES)),
         "ramps_s": schema.items(_SECONDS),
-        "realizations": schema.whole(1),
+        "realizations": schema.whole(1, MAX_REALIZATIONS, "a million full-drive runs per mode "
+                                    "and system is days of CPU; more is a typo"),
         "seed": schema.whole(0),
         "recovery_s": _SECONDS,
-        "chunk_size": schema.whole(1),
+        "chunk_size": schema.whole(1, MAX_CHUNK, "the largest batch benchmarks/scaling.py "
+                                  "measured"),
         "max_traces": schema.whole(0),
         "metric_window": schema.choice(METRIC_WINDOWS),
     }
@@ -245,8 +250,9 @@ def _placement(t: Mapping, base_dir: Path | None) -> PlacementConfig:
         if not p.is_file():
             _fail("placement.file", out["file"], "an existing id,start_s,length_s file")
     for k, used_by in _PLACEMENT_USED_BY.items():
-        if k in out and kind != used_by:
-            _fail(f"placement.{k}", t[k], f"no value: it is used only by kind {used_by!r}")
+        if k in out and kind not in used_by:
+            kinds = " and ".join(repr(u) for u in used_by)
+            _fail(f"placement.{k}", t[k], f"no value: it is used only by kind {kinds}")
     return PlacementConfig(**out)
 
 

@@ -114,6 +114,13 @@ SCENARIO_SCHEMA = {
     "slip_flags": schema.choice(scenario.SLIP_FLAGS),
     "lc_fix_errors": schema.choice(("white", "correlated"), "LC fix-error models"),
 }
+# Peak-memory model (benchmarks/RESULTS.md, "Memory model", peak RSS of jaxnav sweep): the fixed
+# part (XLA, compiled programs; 1.29-1.37 GB measured), bytes per second of drive held (RISS
+# 72 kB/s, INS15 31 kB/s measured: the larger is used for both) and per scenario-window epoch of
+# a chunk (INS15 9.6 kB measured; RISS, whose inputs are a third of INS15's, gets the same).
+_MEMORY_FIXED_BYTES = 1.4e9
+_DRIVE_BYTES_PER_S = 72e3
+_WINDOW_EPOCH_BYTES = 9.6e3
 _STATIC_CALIBRATION_S = 30.0  # the drives start with a 60 s standstill
 
 
@@ -172,6 +179,23 @@ class SimFactory:
         idx = g.slot_table.sat_index
         occ = g.slot_table.occupied[None, :]
         return jnp.where(occ, el[:, idx], -jnp.pi / 2), jnp.where(occ, az[:, idx], 0.0)
+
+    def memory_bytes(self, study_cfg, *, rows: int, chunk_epochs: int) -> dict[str, float]:
+        """Peak memory of a sweep [bytes]: fixed + rows x drive + chunk (measured model).
+
+        drive = duration_s x the per-second cost (the drive's truth, IMU and GNSS inputs, the
+        full run's outputs and checkpoints); chunk =
+        chunk_size x window epochs x the per-epoch cost of a scenario window. The figures are
+        peak-RSS slopes measured on this simulator (benchmarks/RESULTS.md, "Memory model").
+        """
+        drive = rows * self.cfg.duration_s * _DRIVE_BYTES_PER_S
+        chunk = chunk_epochs * _WINDOW_EPOCH_BYTES
+        return {"drive": drive, "chunk": chunk, "total": _MEMORY_FIXED_BYTES + drive + chunk}
+
+    @property
+    def n_slots(self) -> int:
+        """Satellite slots of the scenario (the most a study can keep in an outage)."""
+        return int(self.geo.slots.system.shape[0])
 
     def timeline(self, study_cfg) -> Timeline:
         n = int(self.geo.truth_ep.time_s.shape[0]) - 1

@@ -301,6 +301,11 @@ def random_starts(
     non-decreasing sequences c_i - i in [0, span]; adding i * min_spacing spaces them out.
     """
     lo, hi = _valid_start_range(n_epochs, length, convergence_epochs, tail_epochs)
+    if count > max(hi - lo + 1, 0):  # more placements than start epochs: repeats, not a study
+        raise ValueError(
+            f"count = {count} placements, but only {max(hi - lo + 1, 0)} start epochs "
+            f"[{lo}, {hi}] of the {n_epochs}-epoch drive can hold an outage of {length} epochs"
+        )
     span = hi - lo - (count - 1) * int(min_spacing)
     if count < 0 or span < 0:
         raise ValueError(

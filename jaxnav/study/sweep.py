@@ -72,7 +72,12 @@ from tqdm.auto import tqdm
 import jaxnav
 from jaxnav.core.ops import FilterOps
 from jaxnav.study import metrics as mt
-from jaxnav.study.config import ALL, StudyConfig, validate  # noqa: F401  (ALL re-exported)
+from jaxnav.study.config import (  # noqa: F401  (ALL re-exported)
+    ALL,
+    ConfigError,
+    StudyConfig,
+    validate,
+)
 from jaxnav.study.engine import (
     _Batch,
     _compiled,
@@ -296,6 +301,35 @@ def source_hash() -> str:
     return h.hexdigest()[:16]
 
 
+def available_memory_bytes() -> int:
+    """The memory this process may still take: MemAvailable (Linux), else the physical size."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def _check_memory(cfg: StudyConfig, factory, *, rows: int, chunk_epochs: int, force: bool):
+    estimate = getattr(factory, "memory_bytes", None)
+    if estimate is None or force:
+        return
+    need = estimate(cfg, rows=rows, chunk_epochs=chunk_epochs)
+    have = available_memory_bytes()
+    if need["total"] <= have:
+        return
+    key = max(("scenario.duration_s", "drive"), ("study.chunk_size", "chunk"),
+              key=lambda kv: need[kv[1]])[0]
+    raise ConfigError(
+        f"the study needs about {need['total'] / 1e9:.1f} GB ({need['drive'] / 1e9:.1f} GB for "
+        f"{rows} realisation(s) of the drive held at once, {need['chunk'] / 1e9:.1f} GB for a "
+        f"chunk of {cfg.chunk_size} scenario windows) and {have / 1e9:.1f} GB are available: "
+        f"lower {key}, or pass --force to run it anyway"
+    )
+
+
 def run_sweep(
     cfg: StudyConfig,
     factory,
@@ -306,6 +340,7 @@ def run_sweep(
     progress: bool = True,
     devices: Sequence | None = None,
     on_chunk: Callable[[int, int], None] | None = None,
+    force: bool = False,
 ) -> SweepResult:
     """Run (or resume) a sweep into ``out_dir`` and return its Dataset (module docstring).
 
@@ -313,15 +348,28 @@ def run_sweep(
     optional ``ops_for(mode, system)`` (FilterOps per group) or ``ops`` (one FilterOps for
     every group; default ``tight_ops()``), ``modes`` / ``systems`` (allowed
     labels) and ``fingerprint()`` (hashed with the config so resumed chunks match the code's
-    scenario). ``on_chunk(group, chunk)`` is called after each chunk is persisted.
+    scenario). ``on_chunk(group, chunk)`` is called after each chunk is persisted. A factory
+    with ``memory_bytes(cfg, rows, chunk_epochs)`` has its estimate checked against the memory
+    available before the drive is built and again once the plan is known; beyond it the study
+    is refused (``ConfigError`` naming the key to change) unless ``force``.
     """
     t_wall = time.perf_counter()
     validate(cfg, modes=getattr(factory, "modes", None), systems=getattr(factory, "systems", None))
     ops = getattr(factory, "ops", None) or tight_ops()
     ops_for = getattr(factory, "ops_for", None)  # per (mode, system) when the factory varies it
     fingerprint = factory.fingerprint() if hasattr(factory, "fingerprint") else ""
+    _check_memory(cfg, factory, rows=1, chunk_epochs=0, force=force)  # the drive alone
     timeline = factory.timeline(cfg)
     plan = make_plan(cfg, timeline)
+    _check_memory(cfg, factory, rows=plan.max_rows, chunk_epochs=cfg.chunk_size * plan.window,
+                  force=force)
+    n_slots = getattr(factory, "n_slots", None)
+    over = [k for k in cfg.satellites_kept if n_slots is not None and k != ALL and k > n_slots]
+    if over:
+        raise ConfigError(
+            f"study.satellites_kept = {over[0]}: expected at most the scenario's {n_slots} "
+            "satellite slots, or 'all'"
+        )
     devs = _devices(devices)
     mesh = Mesh(np.array(devs), ("batch",))
     config_hash = cfg.hash(f"{fingerprint}\njaxnav {jaxnav.__version__} {source_hash()}")
