@@ -464,6 +464,18 @@ def test_clk_implausible_records_are_refused_or_counted(tmp_path):
         assert read_clk(write(tmp_path, junk, "junk.clk")).clock_s.shape == (2, 1)
 
 
+def test_sp3_epoch_must_hold_every_listed_satellite(tmp_path):
+    """Issue 23 (found by tests/fuzz): a deleted, repeated or moved position line lost or
+    replaced a sample silently; every epoch holds one record per satellite of the '+' lines,
+    and a file without its EOF line is truncated."""
+    with pytest.raises(InputError, match=r"epoch .*2 position records for the 3 listed .*G02"):
+        read_sp3(write(tmp_path, sp3_text(edit=lambda ls: ls[:7] + ls[8:]), "del.sp3"))
+    with pytest.raises(InputError, match=r"4 position records .*repeated or unlisted G01"):
+        read_sp3(write(tmp_path, sp3_text(edit=lambda ls: ls[:7] + ls[6:]), "dup.sp3"))
+    with pytest.raises(InputError, match="no EOF line"):
+        read_sp3(write(tmp_path, sp3_text()[:-1], "eof.sp3"))
+
+
 def test_sp3_implausible_records_are_refused(tmp_path):
     """Issue 23: a non-finite or off-orbit position, a clock beyond any broadcast clock field and
     an impossible satellite ID are refused with their line (0.000000 stays 'bad sample')."""

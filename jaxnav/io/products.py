@@ -93,6 +93,39 @@ class Sp3Orbit(NamedTuple):
     frame: str  # coordinate frame label from the header, e.g. "IGb14"
 
 
+def _sp3_header_satellites(path: Path, lines: list[str]) -> list[str]:
+    """The satellites the '+' header lines list (SP3-c/d: count in cols 4-6, 17 IDs a line)."""
+    plus = [ln for ln in lines[:60] if ln.startswith("+ ")]
+    try:
+        n = int(plus[0][3:6])
+        ids = "".join(ln[9:60] for ln in plus)
+        listed = [ids[3 * k : 3 * k + 3].replace(" ", "0") for k in range(n)]
+    except (IndexError, ValueError) as exc:
+        raise InputError("bad satellite list", file=path, line=3,
+                         expected="'+' lines with the number of satellites and their IDs") from exc
+    if len(listed) != n or len(set(listed)) != n or any(len(x) != 3 for x in listed):
+        raise InputError(f"the '+' lines list {len(set(listed))} distinct IDs for {n} satellites",
+                         file=path, line=3, expected="every satellite listed once")
+    return listed
+
+
+def _check_epoch_satellites(path: Path, i: int, epoch: str, listed: list[str], svs: list[str]):
+    """An epoch has one position record per satellite of the header (SP3-c/d 'each epoch
+    block has a record for every satellite'; a bad one is written as 0.000000)."""
+    if sorted(svs) != sorted(listed):
+        missing = sorted(set(listed) - set(svs))
+        extra = sorted({s for s in svs if svs.count(s) > 1 or s not in listed})
+        raise InputError(
+            f"{len(svs)} position records for the {len(listed)} listed satellites"
+            + (f" (missing {', '.join(missing[:5])})" if missing else "")
+            + (f" (repeated or unlisted {', '.join(extra[:5])})" if extra else ""),
+            file=path,
+            line=i,
+            epoch=epoch,
+            expected="one record per satellite of the '+' header lines",
+        )
+
+
 def _check_sp3_record(path: Path, line: int, epoch: str, sv: str, xyz_km, clk_us: float):
     """Reject an impossible satellite ID, a non-finite value or a position off every orbit."""
     if sv[0] not in _SP3_SYSTEMS or sv[1:] == "00":
@@ -148,6 +181,7 @@ def _read_sp3_one(path: Path):
             line=2,
             expected="number of epochs (cols 33-39) and epoch interval (line 2 cols 25-38)",
         ) from exc
+    listed = _sp3_header_satellites(path, lines)
     tsys = "GPS"
     for line in lines[:40]:
         if line.startswith("%c"):
@@ -165,10 +199,14 @@ def _read_sp3_one(path: Path):
     epochs: list[np.datetime64] = []
     recs: list[tuple[int, str, float, float, float, float]] = []
     ended = False
+    epoch_svs: list[str] = []
     for i, line in enumerate(lines):
         if line.startswith("*"):
             if ended:
                 raise InputError("data after EOF", file=path, line=i + 1, expected="nothing")
+            if epochs:
+                _check_epoch_satellites(path, i, str(epochs[-1]), listed, epoch_svs)
+            epoch_svs = []
             try:
                 parts = line[1:].split()
                 y, mo, d, h, mi = (int(v) for v in parts[:5])
@@ -216,7 +254,10 @@ def _read_sp3_one(path: Path):
                 ) from exc
             _check_sp3_record(path, i + 1, str(epochs[-1]), sv, (x, y_, z), clk)
             recs.append((len(epochs) - 1, sv, x, y_, z, clk))
+            epoch_svs.append(sv)
         elif line.startswith("EOF"):
+            if epochs and not ended:
+                _check_epoch_satellites(path, i, str(epochs[-1]), listed, epoch_svs)
             ended = True
     if not epochs:
         raise InputError("no epochs", file=path, expected="'*' epoch records")
@@ -227,6 +268,9 @@ def _read_sp3_one(path: Path):
             line=1,
             expected="the declared number of epochs (truncated file?)",
         )
+    if not ended:
+        raise InputError("no EOF line (truncated file?)", file=path, line=len(lines),
+                         expected="the last line 'EOF'")
     t_gps = datetime64_to_gps_seconds(np.array(epochs, dtype="datetime64[ns]")) + shift
     return t_gps, interval, recs, frame
 
@@ -389,7 +433,7 @@ def read_clk(path: str | PathLike, *, systems: set[str] | None = None) -> ClockT
                 raise ValueError(f"value {bad[0]!r} is not in E19.12 form")
             bias = float(parts[9].replace("D", "E"))
             sig = float(parts[10].replace("D", "E")) if n_val >= 2 else np.nan
-        except (ValueError, IndexError) as exc:
+        except (ValueError, IndexError, OverflowError) as exc:
             raise InputError(
                 f"bad AS record {line[:60]!r} ({exc})",
                 file=path,
