@@ -98,6 +98,13 @@ def _field_ok(text: str) -> bool:
         return False
 
 
+def _next_epoch_line(lines: list[str], i: int) -> int:
+    """The first line at or after ``i`` that starts a record (where a scan resynchronises)."""
+    while i < len(lines) and not _RECORD_START.match(lines[i]):
+        i += 1
+    return i
+
+
 def _screen_records(lines: list[str], start: int, use, version: float) -> tuple[list[str], dict]:
     """Check every RINEX 3 record after the header (line ``start``) before georinex reads it.
 
@@ -120,9 +127,7 @@ def _screen_records(lines: list[str], start: int, use, version: float) -> tuple[
         sys_letter = line[:1]
         if not _RECORD_START.match(line) or sys_letter not in _NAV_LINES:
             tally["rejected"].append((i + 1, f"not a record's epoch line: {line[:30]!r}"))
-            i += 1
-            while i < len(lines) and not _RECORD_START.match(lines[i]):
-                i += 1
+            i = _next_epoch_line(lines, i + 1)
             continue
         # RINEX 3.05 added a fourth GLONASS line (status flags, group delay, accuracy)
         n = 4 if sys_letter == "R" and version >= 3.05 else _NAV_LINES[sys_letter]
@@ -138,8 +143,8 @@ def _screen_records(lines: list[str], start: int, use, version: float) -> tuple[
             fields = [record[0][23 + 19 * j : 42 + 19 * j] for j in range(3)] + [
                 c[4 + 19 * j : 23 + 19 * j] for c in record[1:] for j in range(4)
             ]
-            if why is None and not all(_field_ok(f) for f in fields):
-                bad = next(f for f in fields if not _field_ok(f))
+            bad = next((f for f in fields if not _field_ok(f)), None)
+            if why is None and bad is not None:
                 why = f"field {bad.strip()!r} is not a finite number"
         if why is None:
             if use is None or sys_letter in use:
@@ -150,9 +155,7 @@ def _screen_records(lines: list[str], start: int, use, version: float) -> tuple[
             i += 1 + n
         else:
             tally["rejected"].append((i + 1, f"{line[:3]} record: {why}"))
-            i += 1
-            while i < len(lines) and not _RECORD_START.match(lines[i]):
-                i += 1
+            i = _next_epoch_line(lines, i + 1)
     return kept, tally
 
 
