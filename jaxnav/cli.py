@@ -75,10 +75,34 @@ def _sweep(args) -> int:
         print(f"jaxnav sweep: invalid study: {e}", file=sys.stderr)
         return 2
     try:
+        if args.check:
+            return _check_study(cfg, factory, args.config, args.force)
+        if args.out is None:
+            print("jaxnav sweep: --out is required (or --check to validate only)",
+                  file=sys.stderr)
+            return 2
         return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite, args.force)
     except config.ConfigError as e:  # found when the plan turns seconds into epochs
         print(f"jaxnav sweep: invalid study: {args.config}: {e}", file=sys.stderr)
         return 2
+
+
+def _check_study(cfg, factory, path, force: bool) -> int:
+    """``jaxnav sweep --check``: every pre-work check, a summary, no file written."""
+    from jaxnav.study import sweep
+
+    plan = sweep.check_study(cfg, factory, force=force)
+    groups = len(cfg.modes) * len(cfg.systems)
+    line = (f"{path}: valid; {groups} group(s) ({', '.join(cfg.modes)} x "
+            f"{', '.join(cfg.systems)}) x {plan.n_per_group} scenarios = "
+            f"{groups * plan.n_per_group} scenarios in {plan.n_chunks} chunk(s) per group; "
+            f"{plan.timeline.n_epochs} epochs, window {plan.window}")
+    estimate = getattr(factory, "memory_bytes", None)
+    if estimate is not None:
+        need = estimate(cfg, rows=plan.max_rows, chunk_epochs=cfg.chunk_size * plan.window)
+        line += f"; memory about {need['total'] / 1e9:.2f} GB"
+    print(line)
+    return 0
 
 
 def _first_line(obj) -> str:
@@ -126,11 +150,13 @@ def main(argv=None) -> int:
 
     p = sub.add_parser("sweep", help="run a study defined in a TOML file")
     p.add_argument("config", help="study TOML (see jaxnav/study/config.py)")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", help="output folder (required unless --check)")
     p.add_argument("--resume", action="store_true", help="reuse completed chunks in --out")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result")
     p.add_argument("--force", action="store_true",
                    help="run a study whose memory estimate exceeds the memory available")
+    p.add_argument("--check", action="store_true",
+                   help="validate the study (schema, plan, memory) and print its size; no run")
     p.set_defaults(func=_sweep)
 
     p = sub.add_parser("list", help="what the registries hold: PPP modes, systems, presets")

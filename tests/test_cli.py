@@ -75,6 +75,46 @@ def test_invalid_config_is_rejected_before_any_work(tmp_path, capsys, old, new, 
     assert not out.exists()
 
 
+@pytest.mark.parametrize("old, new, words", [
+    # issue 23's accepted-nonsense and late-traceback studies, refused by --check with their key
+    ("duration_s = 240", "duration_s = 240\niono_scale = -1", ["scenario.iono_scale = -1"]),
+    ("duration_s = 240", "duration_s = 240\niono_scale = nan", ["scenario.iono_scale = nan"]),
+    ("duration_s = 240", "duration_s = 240\niono_scale = 9.99e99",
+     ["scenario.iono_scale = 9.99e+99", "<= 20"]),
+    ("duration_s = 240", 'duration_s = 240\nimu_grade = "__name__"',
+     ["scenario.imu_grade = '__name__'"]),
+    ("duration_s = 240", "duration_s = 240\ndrive_seed = -5", ["scenario.drive_seed = -5"]),
+    ("duration_s = 240", "duration_s = -240", ["scenario.duration_s = -240"]),
+    ("duration_s = 240", "duration_s = inf", ["scenario.duration_s = inf"]),
+    ("durations_s = [20]", "durations_s = [nan]", ["study.durations_s[0] = nan"]),
+])
+def test_check_refuses_what_a_run_would(tmp_path, capsys, old, new, words):
+    bad = tmp_path / "bad.toml"
+    text = TINY.replace(old, new)
+    assert text != TINY
+    bad.write_text(text)
+    assert cli.main(["sweep", str(bad), "--check"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(bad) in err, err
+    for w in words:
+        assert w in err, err
+
+
+def test_check_prints_the_study_size_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["sweep", str(cfg), "--check"]) == 0
+    out = capsys.readouterr().out
+    # 1 mode x 1 system; grid starts 120, 160, 200 s each leave the 20-s outage and 10 s of
+    # recovery inside 240 s: 3 placements x 2 kept x 1 duration x 1 realisation
+    assert "valid; 1 group(s) (sf_ppp x riss) x 6 scenarios = 6 scenarios" in out, out
+    assert "memory about" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny.toml"]
+    assert cli.main(["sweep", str(cfg)]) == 2  # a run needs --out
+    assert "--out is required" in capsys.readouterr().err
+
+
 def test_tiny_sweep_writes_results_tables_and_plots(tmp_path, goldens, capsys):
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(TINY)

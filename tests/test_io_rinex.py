@@ -299,6 +299,79 @@ def test_damaged_rinex3(tmp_path):
         read_rinex_obs(write(tmp_path, no_types + sum(blocks, []), "bad.rnx"), {"G": ["C1"]})
 
 
+def _set_field(line: str, q: int, text: str) -> str:
+    """RINEX 3 satellite record with observation field ``q`` (0-based) replaced by ``text``."""
+    c = 3 + 16 * q
+    return line[:c] + text.rjust(14) + line[c + 14 :]
+
+
+def test_damaged_rinex3_values(tmp_path):
+    """Values RINEX cannot hold, satellites twice, long records, tabs and miscounted headers
+    are refused with their line; out-of-range values are masked with a warning."""
+    hdr, blocks = _blocks(rinex3_text(n_epochs=3))
+    n_hdr = len(hdr)
+
+    def f(bl, h=hdr):
+        return write(tmp_path, h + sum(bl, []), "bad.rnx")
+
+    rec_line = n_hdr + len(blocks[0]) + 2  # epoch 1, first satellite (G05)
+    for junk in ("nan", "Infinity", "-inf"):
+        bad = [list(b) for b in blocks]
+        bad[1][1] = _set_field(bad[1][1], 0, junk)  # G05 C1C
+        with pytest.raises(InputError, match=rf"line {rec_line}, .*non-finite .*G05 C1C"):
+            read_rinex_obs(f(bad), {"G": ["C1"]})
+    # out of physical range: C1C 0.000 ("not tracked" for some writers), D1C 2e5 Hz, S1C -3
+    bad = [list(b) for b in blocks]
+    bad[1][1] = _set_field(bad[1][1], 0, "0.000")
+    bad[1][2] = _set_field(bad[1][2], 6, "200000.000")  # G07 D1C
+    bad[2][1] = _set_field(bad[2][1], 7, "-3.000")  # G05 S1C
+    with pytest.warns(UserWarning, match=rf"3 observation\(s\) outside .*G05 C1C = 0 at line "
+                      rf"{rec_line}"):
+        obs = read_rinex_obs(f(bad), {"G": ["C1", "D1", "S1", "L1"]})
+    g = obs.systems["G"]
+    assert not g.mask["C1"][1, 4] and not g.mask["D1"][1, 6] and not g.mask["S1"][2, 4]
+    assert g.mask["C1"].sum() == 3 * 3 - 1 and g.mask["L1"][1, 4]  # nothing else lost
+    twice = [list(b) for b in blocks]
+    twice[1][2] = "G05" + twice[1][2][3:]
+    with pytest.raises(InputError, match=rf"line {rec_line + 1}, .*G05 twice in one epoch"):
+        read_rinex_obs(f(twice), {"G": ["C1"]})
+    long = [list(b) for b in blocks]
+    long[1][1] = long[1][1].ljust(3 + 16 * 8) + "  20000000.000"
+    with pytest.raises(InputError, match=rf"line {rec_line}, .*longer than its 8 declared types"):
+        read_rinex_obs(f(long), {"G": ["C1"]})
+    tab = [list(b) for b in blocks]
+    tab[1][3] = tab[1][3].replace("  ", "\t", 1)
+    with pytest.raises(InputError, match=rf"line {rec_line + 2}: tab character"):
+        read_rinex_obs(f(tab), {"G": ["C1"]})
+    k = next(i for i, x in enumerate(hdr) if x.startswith("G") and "OBS TYPES" in x)
+    miscount = list(hdr)
+    miscount[k] = miscount[k][:3] + "  9" + miscount[k][6:]
+    with pytest.raises(InputError, match=rf"line {k + 1}: .*G declares 9 types but lists 8"):
+        read_rinex_obs(f(blocks, miscount), {"G": ["C1"]})
+    alien = [list(b) for b in blocks]
+    alien[1][1] = "J01" + alien[1][1][3:]
+    with pytest.raises(InputError, match=rf"line {rec_line}, .*J01 of a system without"):
+        read_rinex_obs(f(alien), {"G": ["C1"]})
+
+
+def test_damaged_rinex2_header_and_ids(tmp_path):
+    lines = rinex2_text()
+    k = next(i for i, x in enumerate(lines) if "TYPES OF OBSERV" in x)
+    miscount = list(lines)
+    miscount[k] = f"{7:6d}" + miscount[k][6:]
+    with pytest.raises(InputError, match=rf"line {k + 1}: .*7 types declared but 6 listed"):
+        read_rinex_obs(write(tmp_path, miscount, "m.20o"), {"G": ["C1"]})
+    e = next(i for i, x in enumerate(lines) if x.startswith(" 20  6 25"))
+    twice = list(lines)
+    twice[e] = twice[e][:32] + "G05G05E11"
+    with pytest.raises(InputError, match=rf"line {e + 4}, .*G05 twice"):
+        read_rinex_obs(write(tmp_path, twice, "t.20o"), {"G": ["C1"]})
+    junk = list(lines)
+    junk[e] = junk[e][:32] + "G0xG07E11"
+    with pytest.raises(InputError, match=rf"line {e + 1}, .*satellite id 'G0x'"):
+        read_rinex_obs(write(tmp_path, junk, "j.20o"), {"G": ["C1"]})
+
+
 # ------------------------------------------------------------------------------------------
 # Real data (ESBC, 2020-06-25)
 

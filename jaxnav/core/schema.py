@@ -36,19 +36,24 @@ def _is_real(v) -> bool:
 
 
 def number(lo: float | None = None, *, strict: bool = False, unit: str = "",
-           specials: Mapping[str, Any] | None = None) -> Rule:
-    """A finite number (``>= lo``, or ``> lo`` when ``strict``), returned as float; ``specials``
-    maps accepted strings (e.g. ``"inf"``) to their values."""
+           specials: Mapping[str, Any] | None = None, hi: float | None = None,
+           why: str = "") -> Rule:
+    """A finite number (``>= lo``, or ``> lo`` when ``strict``; ``<= hi``, ``why`` says where
+    that bound comes from), returned as float; ``specials`` maps accepted strings (e.g.
+    ``"inf"``) to their values."""
     what = "a number" + (f" of {unit}" if unit else "")
     if lo is not None:
         what += f" {'>' if strict else '>='} {lo:g}"
+    if hi is not None:
+        what += f"{' and' if lo is not None else ''} <= {hi:g}" + (f" ({why})" if why else "")
     if specials:
         what += " (or " + " or ".join(f'"{s}"' for s in specials) + ")"
 
     def rule(v):
         if specials and isinstance(v, str) and v in specials:
             return specials[v]
-        if not _is_real(v) or (lo is not None and (v <= lo if strict else v < lo)):
+        if not _is_real(v) or (lo is not None and (v <= lo if strict else v < lo)) or (
+                hi is not None and v > hi):
             raise Invalid(what)
         return float(v)
 

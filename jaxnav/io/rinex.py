@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import io
+import math
 import re
 import warnings
 from collections.abc import Mapping, Sequence
@@ -177,12 +178,26 @@ def _obs_types(path: Path, hdr: dict, version: float, lines) -> dict[str, list[s
                 "missing SYS / # / OBS TYPES", file=path, expected="RINEX 3 observation header"
             )
         types: dict[str, list[str]] = {}
+        declared: dict[str, tuple[int, str]] = {}
         sys = None
         for row in rows:
             if row[0] != " ":
                 sys = row[0]
                 types[sys] = []
+                try:
+                    declared[sys] = (int(row[3:6]), row)
+                except ValueError as exc:
+                    raise _header_error(path, lines, row, "SYS / # / OBS TYPES", "the count "
+                                        f"{row[3:6]!r} of {sys}", "I3 number of types") from exc
+            elif sys is None:
+                raise _header_error(path, lines, row, "SYS / # / OBS TYPES", "a continuation "
+                                    "line before any system", "a line opening with the system")
             types[sys] += row[7:60].split()
+        for sys, (n, row) in declared.items():
+            if n != len(types[sys]):  # a lost or repeated continuation line shifts every field
+                raise _header_error(path, lines, row, "SYS / # / OBS TYPES", f"{sys} declares "
+                                    f"{n} types but lists {len(types[sys])}",
+                                    f"{n} types on 13-type lines")
         return types
     rows = hdr.get("# / TYPES OF OBSERV")
     if not rows:
@@ -192,7 +207,22 @@ def _obs_types(path: Path, hdr: dict, version: float, lines) -> dict[str, list[s
     t2: list[str] = []
     for row in rows:
         t2 += row[6:60].split()
+    try:
+        n2 = int(rows[0][:6])
+    except ValueError as exc:
+        raise _header_error(path, lines, rows[0], "# / TYPES OF OBSERV", f"the count "
+                            f"{rows[0][:6]!r}", "I6 number of types") from exc
+    if n2 != len(t2):
+        raise _header_error(path, lines, rows[0], "# / TYPES OF OBSERV", f"{n2} types declared "
+                            f"but {len(t2)} listed", f"{n2} types on 9-type lines")
     return {"v2": t2}
+
+
+def _header_error(path, lines, row, label, what, expected) -> InputError:
+    """InputError at the header line holding ``row`` under ``label``."""
+    k = next((k for k, ln in enumerate(lines) if ln[:60] == row and label in ln), None)
+    return InputError(f"{label}: {what}", file=path, line=None if k is None else k + 1,
+                      expected=expected)
 
 
 def _epoch_time(path: Path, line: str, i: int, version: float) -> tuple[np.datetime64, str, int]:
@@ -214,7 +244,7 @@ def _epoch_time(path: Path, line: str, i: int, version: float) -> tuple[np.datet
         t = np.datetime64(_dt.datetime(y, mo, d, h, mi), "ns") + np.timedelta64(
             int(round(sec * 1e9)), "ns"
         )
-    except (ValueError, IndexError) as exc:
+    except (ValueError, IndexError, OverflowError) as exc:  # OverflowError: seconds "Infinity"
         raise InputError(
             f"unparsable epoch record {line[:40]!r}",
             file=path,
@@ -224,28 +254,50 @@ def _epoch_time(path: Path, line: str, i: int, version: float) -> tuple[np.datet
     return t, flag.strip() or "0", n
 
 
-def _check_fields(path, line, i, sys, cols, t, what="observation"):
-    """Check that the 14-character value fields at ``cols`` are blank or numbers."""
-    for c in cols:
+# Physical range of a value by observation type letter (RINEX 2 "P" is code): a pseudorange
+# from the ground or a LEO to a GNSS satellite is 1.9e7-4.2e7 m, with room for a receiver clock
+# offset of +-17 ms; a Doppler under 1e5 Hz covers orbital motion, any vehicle and a 10 ppm
+# oscillator; C/N0 in dB-Hz is 0-99. Outside, a value is masked with a warning (some writers
+# put 0.000 for "not tracked"). Carrier phase carries an arbitrary offset: finite only.
+_RANGE = {"C": (1.0e7, 5.0e7), "P": (1.0e7, 5.0e7), "D": (-1.0e5, 1.0e5), "S": (0.0, 99.0)}
+
+
+def _check_fields(path, line, i, sv, cols, t, names, out_of_range):
+    """Check that the 14-character value fields at ``cols`` are blank or finite numbers; append
+    (epoch, sv, type, line) to ``out_of_range`` for a value outside its type's physical range."""
+    for c, name in zip(cols, names, strict=True):
         field = line[c : c + 14]
         if field.strip():
             try:
-                float(field)
+                v = float(field)
             except ValueError as exc:
                 raise InputError(
-                    f"unparsable {what} value {field.strip()!r} for {sys}",
+                    f"unparsable observation value {field.strip()!r} for {sv}",
                     file=path,
                     line=i + 1,
                     epoch=str(t),
                     expected="F14.3 number or blanks",
                 ) from exc
+            if not math.isfinite(v):  # float() takes "nan" and "Infinity"; RINEX has neither
+                raise InputError(
+                    f"non-finite observation value {field.strip()!r} for {sv} {name}",
+                    file=path,
+                    line=i + 1,
+                    epoch=str(t),
+                    expected="F14.3 number or blanks",
+                )
+            lo, hi = _RANGE.get(name[0], (-math.inf, math.inf))
+            if not lo <= v <= hi:
+                out_of_range.append((t, sv, name, i + 1, v))
 
 
-def _scan_obs(path, lines, start, version, types, check, tlim):
+def _scan_obs(path, lines, start, version, types, check, tlim, out_of_range):
     """Walk the epoch records: structure, ordering; numeric check of requested fields in tlim.
 
     ``check`` maps constellation -> list of observation indices to validate. Returns the list of
-    (time, line) of observation epochs. Raises InputError on truncation / bad order.
+    (time, line) of observation epochs; values outside their physical range are appended to
+    ``out_of_range``. Raises InputError on truncation, bad order, a satellite twice in an epoch,
+    a record longer than its declared types, tabs, unparsable or non-finite values.
     """
     n_lines = len(lines)
     epochs: list[tuple[np.datetime64, int]] = []
@@ -257,6 +309,9 @@ def _scan_obs(path, lines, start, version, types, check, tlim):
         if not line.strip():
             i += 1
             continue
+        if "\t" in line:  # RINEX is fixed-column: a tab moves every field after it
+            raise InputError("tab character in a record", file=path, line=i + 1,
+                             expected="fixed-column ASCII without tabs")
         if version >= 3 and line[0] != ">":
             raise InputError(
                 f"unexpected record {line[:40]!r}",
@@ -295,11 +350,14 @@ def _scan_obs(path, lines, start, version, types, check, tlim):
                 expected=f"{n * per_sat} observation lines (truncated record)",
             )
         in_window = (t0 is None or t >= t0) and (t1 is None or t <= t1)
+        seen: set[str] = set()
         for k in range(n):
             j = body + k * per_sat
-            sv = svs[k]
             if version >= 3:
                 rec = lines[j]
+                if "\t" in rec:
+                    raise InputError("tab character in a record", file=path, line=j + 1,
+                                     expected="fixed-column ASCII without tabs")
                 if rec[:1] == ">" or not re.match(r"^[A-Z][ 0-9]\d$", rec[:3]):
                     raise InputError(
                         f"expected satellite record {k + 1} of {n}, found {rec[:40]!r}",
@@ -309,13 +367,41 @@ def _scan_obs(path, lines, start, version, types, check, tlim):
                         expected="a line starting with a satellite id like 'G05' (truncated?)",
                     )
                 sys = rec[0]
-                if in_window and sys in check and flag != "6":
-                    _check_fields(path, rec, j, rec[:3], [3 + 16 * q for q in check[sys]], t)
+                if sys not in types:
+                    raise InputError(
+                        f"satellite {rec[:3]} of a system without SYS / # / OBS TYPES",
+                        file=path, line=j + 1, epoch=str(t),
+                        expected=f"satellites of {''.join(types)}",
+                    )
+                if len(rec.rstrip()) > 3 + 16 * len(types[sys]):
+                    raise InputError(
+                        f"{rec[:3]} record is longer than its {len(types[sys])} declared types",
+                        file=path, line=j + 1, epoch=str(t),
+                        expected=f"at most {3 + 16 * len(types[sys])} characters",
+                    )
+                sv = f"{sys}{int(rec[1:3]):02d}"
+                names = types[sys]
             else:
-                sys = (sv[0].strip() or "G") if sv else "G"
-                if in_window and sys in check and flag != "6":
-                    for q in check[sys]:
-                        _check_fields(path, lines[j + q // 5], j + q // 5, sv, [16 * (q % 5)], t)
+                if not re.match(r"^[A-Z ][ 0-9]\d$", svs[k]):
+                    raise InputError(f"satellite id {svs[k]!r} in the epoch's list",
+                                     file=path, line=i + 1, epoch=str(t),
+                                     expected="A1,I2 satellite ids like 'G05'")
+                sv = f"{svs[k][0].strip() or 'G'}{int(svs[k][1:3]):02d}"
+                sys = sv[0]
+                names = types["v2"]
+            if sv in seen:  # georinex would keep one of the two records without a word
+                raise InputError(f"satellite {sv} twice in one epoch", file=path,
+                                 line=j + 1, epoch=str(t), expected="one record per satellite")
+            seen.add(sv)
+            if not (in_window and sys in check and flag != "6"):
+                continue
+            if version >= 3:
+                _check_fields(path, rec, j, sv, [3 + 16 * q for q in check[sys]], t,
+                              [names[q] for q in check[sys]], out_of_range)
+            else:
+                for q in check[sys]:
+                    _check_fields(path, lines[j + q // 5], j + q // 5, sv, [16 * (q % 5)], t,
+                                  [names[q]], out_of_range)
         epochs.append((t, i + 1))
         i = end
     return epochs
@@ -423,7 +509,8 @@ def read_rinex_obs(
         wanted = {avail[sys][c] for c in codes[sys].values() if c is not None}
         names = types["v2"] if version < 3 else types.get(sys, [])
         check[sys] = [k for k, name in enumerate(names) if name in wanted or version < 3]
-    epochs = _scan_obs(path, lines, end_i + 1, version, types, check, tlim)
+    out_of_range: list = []
+    epochs = _scan_obs(path, lines, end_i + 1, version, types, check, tlim, out_of_range)
     ep_t = np.array([e[0] for e in epochs], dtype="datetime64[ns]")
     back = np.flatnonzero(np.diff(ep_t) < np.timedelta64(0, "ns"))
     if back.size:
@@ -459,6 +546,9 @@ def read_rinex_obs(
             file=path,
             expected=f"epochs between {tlim[0]} and {tlim[1]}" if tlim else "epochs",
         )
+
+    if out_of_range:
+        ds = _mask_out_of_range(path, ds, out_of_range)
 
     # Time system -> GPS seconds.
     tsys = str(ds.attrs.get("time_system", "GPS")).strip().upper()
@@ -563,6 +653,24 @@ def read_rinex_obs(
     pos = ds.attrs.get("position")
     approx = np.asarray(pos, np.float64) if pos is not None else np.full(3, np.nan)
     return RinexObs(t_gps, present, systems, interval, approx, hdr)
+
+
+def _mask_out_of_range(path, ds, found):
+    """Mask the values outside their type's physical range (``_RANGE``), with one warning."""
+    t_ds = ds.time.values.astype("datetime64[ns]")
+    sv_ds = {str(s): c for c, s in enumerate(ds.sv.values)}
+    for t, sv, name, _, _ in found:
+        r = min(int(np.searchsorted(t_ds, t)), t_ds.size - 1)
+        if name in ds and sv in sv_ds and abs(t_ds[r] - t) < np.timedelta64(1, "ms"):
+            ds[name][{"time": r, "sv": sv_ds[sv]}] = np.nan
+    t, sv, name, line, v = found[0]
+    warnings.warn(
+        f"{path}: {len(found)} observation(s) outside their physical range masked, first "
+        f"{sv} {name} = {v:g} at line {line} (code 1e7-5e7 m, Doppler |D| <= 1e5 Hz, "
+        "C/N0 0-99 dB-Hz)",
+        stacklevel=3,
+    )
+    return ds
 
 
 def _interval(hdr: dict, t_gps: np.ndarray) -> float:

@@ -105,7 +105,9 @@ SCENARIO_SCHEMA = {
     "imu_grade": schema.choice(sensors.IMU_GRADES, "RISS sensor presets"),
     "ins_grade": schema.choice(sensors.IMU_GRADES, "full-IMU presets"),
     "odometer": schema.choice(sensors.ODOMETERS),
-    "iono_scale": schema.number(0),
+    # daytime mid-latitude VTEC: 10-15 TECU at solar minimum, 40-60 at maximum, ~200 in the
+    # strongest storms recorded (October 2003)
+    "iono_scale": schema.number(0, hi=20, why="the strongest recorded storms"),
     "constellations": schema.items(schema.choice(_CONSTELLATIONS)),
     "slots": schema.items(schema.whole(1), length=3, unique=False),
     "bssd": schema.boolean(),

@@ -330,6 +330,26 @@ def _check_memory(cfg: StudyConfig, factory, *, rows: int, chunk_epochs: int, fo
     )
 
 
+def check_study(cfg: StudyConfig, factory, *, force: bool = False) -> Plan:
+    """Every check a study passes before any work (``ConfigError`` naming the key): the schema,
+    the memory estimate for the drive alone, the timeline and plan (seconds -> epochs, outage
+    placements), the memory estimate for the plan, and satellites_kept against the scenario's
+    slots. Returns the plan; touches no file (``jaxnav sweep --check``)."""
+    validate(cfg, modes=getattr(factory, "modes", None), systems=getattr(factory, "systems", None))
+    _check_memory(cfg, factory, rows=1, chunk_epochs=0, force=force)  # the drive alone
+    plan = make_plan(cfg, factory.timeline(cfg))
+    _check_memory(cfg, factory, rows=plan.max_rows, chunk_epochs=cfg.chunk_size * plan.window,
+                  force=force)
+    n_slots = getattr(factory, "n_slots", None)
+    over = [k for k in cfg.satellites_kept if n_slots is not None and k != ALL and k > n_slots]
+    if over:
+        raise ConfigError(
+            f"study.satellites_kept = {over[0]}: expected at most the scenario's {n_slots} "
+            "satellite slots, or 'all'"
+        )
+    return plan
+
+
 def run_sweep(
     cfg: StudyConfig,
     factory,
@@ -354,22 +374,10 @@ def run_sweep(
     is refused (``ConfigError`` naming the key to change) unless ``force``.
     """
     t_wall = time.perf_counter()
-    validate(cfg, modes=getattr(factory, "modes", None), systems=getattr(factory, "systems", None))
+    plan = check_study(cfg, factory, force=force)
     ops = getattr(factory, "ops", None) or tight_ops()
     ops_for = getattr(factory, "ops_for", None)  # per (mode, system) when the factory varies it
     fingerprint = factory.fingerprint() if hasattr(factory, "fingerprint") else ""
-    _check_memory(cfg, factory, rows=1, chunk_epochs=0, force=force)  # the drive alone
-    timeline = factory.timeline(cfg)
-    plan = make_plan(cfg, timeline)
-    _check_memory(cfg, factory, rows=plan.max_rows, chunk_epochs=cfg.chunk_size * plan.window,
-                  force=force)
-    n_slots = getattr(factory, "n_slots", None)
-    over = [k for k in cfg.satellites_kept if n_slots is not None and k != ALL and k > n_slots]
-    if over:
-        raise ConfigError(
-            f"study.satellites_kept = {over[0]}: expected at most the scenario's {n_slots} "
-            "satellite slots, or 'all'"
-        )
     devs = _devices(devices)
     mesh = Mesh(np.array(devs), ("batch",))
     config_hash = cfg.hash(f"{fingerprint}\njaxnav {jaxnav.__version__} {source_hash()}")

@@ -13,7 +13,8 @@ replaced by NaN, Infinity or a huge value, another text encoding. Every case end
 - ``foreign``: any other exception, or an ``InputError`` without the file name (a defect);
 - ``slow``: took longer than ``SLOW_S`` (a hang, in a harness that cannot interrupt);
 - ``silent``: read silently with a checkable property broken (non-finite or out-of-range
-  values, fewer records than the file declares, time going backwards, impossible IDs): a defect.
+  values, fewer records or values than the file holds, time going backwards, impossible IDs): a
+  defect.
 
 Run ``python tests/fuzz/harness.py --cases 200`` for the full form (docs/reliability.md); the
 test suite runs a quick form (``tests/fuzz/test_fuzz.py``).
@@ -22,6 +23,7 @@ test suite runs a quick form (``tests/fuzz/test_fuzz.py``).
 from __future__ import annotations
 
 import argparse
+import functools
 import gzip
 import re
 import time
@@ -183,6 +185,17 @@ def _ubx_original() -> bytes:
     return data[:p]
 
 
+@functools.cache
+def _obs_original() -> bytes:
+    """ESBC's header and first 20 epochs, Hatanaka-expanded (the reader's own text routine)."""
+    from jaxnav.io.text import read_text
+
+    lines = read_text(DATA / "esbc_static" / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz")
+    lines = lines.splitlines()
+    epochs = [i for i, ln in enumerate(lines[:5000]) if ln.startswith(">")]
+    return ("\n".join(lines[: epochs[20]]) + "\n").encode()
+
+
 def _after(marker: bytes, offset: int = 1) -> Callable[[bytes], int]:
     """Lines before the first line starting with (or containing) ``marker``, plus offset - 1."""
     def skip(data: bytes) -> int:
@@ -315,6 +328,126 @@ def _ubx_check(o, ref, data) -> list[str]:
     return [] if _ubx_summary(o) == _ubx_summary(ref) else ["checksummed data changed silently"]
 
 
+def _obs(path):
+    from jaxnav.io import read_rinex_obs
+    return read_rinex_obs(path)
+
+
+def _obs_summary(o):
+    arrays = [np.nan_to_num(np.asarray(v, float), nan=1e300).tobytes()
+              for s in o.systems.values() for v in s.obs.values()]
+    return (o.time_gps_s.tobytes(), tuple(arrays))
+
+
+_OBS_RANGE = {"C": (1.0e7, 5.0e7), "D": (-1.0e5, 1.0e5), "S": (0.0, 99.0)}
+
+
+def _obs_check(o, ref, data) -> list[str]:
+    bad = []
+    if np.any(np.diff(o.time_gps_s) <= 0):
+        bad.append("time not increasing")
+    for sys, so in o.systems.items():
+        for req, a in so.obs.items():
+            if np.isinf(a).any():
+                bad.append(f"infinite {sys} {req}")
+            lo, hi = _OBS_RANGE.get(req[0], (-np.inf, np.inf))
+            v = a[np.isfinite(a)]
+            if np.any((v < lo) | (v > hi)):
+                bad.append(f"{sys} {req} outside its physical range")
+    # every non-blank requested field of a satellite record must come out as a value
+    types: dict[str, list[str]] = {}
+    for row in ref.header["SYS / # / OBS TYPES"]:  # 13 per line, continuations open blank
+        sys = row[0] if row[0] != " " else sys
+        types.setdefault(sys, []).extend(row[7:60].split())
+    held = {(sys, req): 0 for sys, so in o.systems.items() for req in so.obs}
+    for line in data.decode("ascii", "replace").splitlines():
+        if line[:1] in o.systems and re.match(r"^[A-Z]\d\d", line):
+            so = o.systems[line[0]]
+            for req, code in so.codes.items():
+                if code in types.get(line[0], []):
+                    c = 3 + 16 * types[line[0]].index(code)
+                    held[(line[0], req)] += bool(line[c: c + 14].strip())
+    for (sys, req), n in held.items():
+        got = int(o.systems[sys].mask[req].sum())
+        if got < n:
+            bad.append(f"{sys} {req}: {got} values read of the {n} the file holds")
+    return bad
+
+
+# A small valid study (the CLI's tiny test study, multi-GNSS): mutated per key, then checked by
+# ``jaxnav sweep --check``, which must refuse in one line naming the file (exit 2) or pass.
+STUDY = """\
+[study]
+name = "fuzz"
+modes = ["sf_ppp", "float_ppp"]
+systems = ["riss"]
+durations_s = [20, 30.0]
+satellites_kept = [0, 2, "all"]
+realizations = 1
+recovery_s = 10
+chunk_size = 8
+
+[placement]
+kind = "grid"
+convergence_s = 120
+spacing_s = 40.0
+
+[scenario]
+duration_s = 240
+constellations = ["gps", "galileo"]
+drive_seed = 3
+iono_scale = 1.0
+imu_grade = "crossbow_imu300cc"
+"""
+_VALUES = ["nan", "inf", "-inf", "-1", "0", "1e9", "9.99e99", "2.5", '"x"', '"__name__"', "[]",
+           "[1, 2]", "true", '""', "{}"]
+
+
+def mutate_study(data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
+    """One mutation of a study TOML: a value replaced, a key deleted / repeated / unknown, a
+    table header lost."""
+    lines = data.decode().split("\n")
+    keys = [i for i, ln in enumerate(lines) if " = " in ln]
+    i = keys[int(rng.integers(len(keys)))]
+    kind = ["value", "value", "value", "delete", "duplicate", "unknown", "table"][
+        int(rng.integers(7))]
+    if kind == "value":
+        v = _VALUES[int(rng.integers(len(_VALUES)))]
+        key = lines[i].split(" = ")[0]
+        lines[i] = f"{key} = {v}"
+        kind = f"{key}={v}"
+    elif kind == "delete":
+        del lines[i]
+    elif kind == "duplicate":
+        lines.insert(i, lines[i])
+    elif kind == "unknown":
+        lines.insert(i, "colour = 3")
+    else:
+        tables = [j for j, ln in enumerate(lines) if ln.startswith("[")]
+        del lines[tables[int(rng.integers(len(tables)))]]
+    return kind, "\n".join(lines).encode()
+
+
+def _study(path):
+    """``jaxnav sweep PATH --check`` in this process: exit 2 with one line naming the file is an
+    InputError (refused); anything else but exit 0 is a foreign outcome."""
+    import contextlib
+    import io
+
+    from jaxnav import cli
+    from jaxnav.io import InputError
+
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+        code = cli.main(["sweep", str(path), "--check"])
+    text = err.getvalue()
+    if code == 2 and text.count("\n") == 1 and str(path) in text:
+        raise InputError(text.strip().replace(str(path), path.name), file=path)
+    if code != 0:
+        raise RuntimeError(f"exit {code}: {text[-300:]}")
+    return out.getvalue().replace(str(path), "<file>")
+
+
 def _digest(o):
     """A comparable digest of a NamedTuple of arrays."""
     return tuple(np.asarray(v).tobytes() if isinstance(v, np.ndarray) else repr(v) for v in o)
@@ -330,6 +463,10 @@ READERS = {
     "imu": Reader("imu", ".csv", True, lambda d: 0, _imu_original, _imu, _digest, _imu_check),
     "ubx": Reader("ubx", ".ubx", False, lambda d: 0, _ubx_original, _ubx, _ubx_summary,
                   _ubx_check),
+    "obs": Reader("obs", ".rnx", True, _after(b">"), _obs_original, _obs, _obs_summary,
+                  _obs_check),
+    "study": Reader("study", ".toml", True, lambda d: 0, lambda: STUDY.encode(), _study,
+                    lambda o: o, lambda o, ref, data: []),
 }
 
 
@@ -376,7 +513,10 @@ def run_reader(reader: Reader, n: int, folder: Path, seed: int = 0) -> list[Case
     rng = np.random.default_rng(seed)
     cases = []
     for k in range(n):
-        kind, data = mutate(original, rng, text=reader.text, skip=skip)
+        if reader.name == "study":
+            kind, data = mutate_study(original, rng)
+        else:
+            kind, data = mutate(original, rng, text=reader.text, skip=skip)
         path = _write(reader, folder, data, f"case{k:04d}")
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as rec:
