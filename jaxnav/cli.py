@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from pathlib import Path
 
@@ -28,16 +29,35 @@ DEMO_STUDY = {
 }
 
 
-def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool, force: bool = False) -> int:
-    from jaxnav.study import report, sweep
+SCHEDULER_TIMEOUT_S = 10  # a scheduler that does not answer in this time is a wrong address
 
+
+def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool, force: bool = False,
+               workers: int = 1, scheduler: str | None = None) -> int:
+    from jaxnav.study import parallel, report, sweep
+
+    client = None
+    if scheduler is not None:
+        from distributed import Client
+
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+        except (OSError, TimeoutError) as e:
+            print(f"jaxnav: --scheduler {scheduler}: cannot connect ({e})", file=sys.stderr)
+            return 2
     try:  # the folder's state (existing result, other study, damaged files) is checked first
         result = sweep.run_sweep(cfg, factory, out, resume=resume, overwrite=overwrite,
-                                 force=force)
+                                 force=force, workers=workers, client=client)
     except (FileExistsError, sweep.StoreError) as e:
         text = str(e).replace("overwrite=True", "--overwrite").replace("resume=True", "--resume")
         print(f"jaxnav: {text}", file=sys.stderr)
         return 2
+    except parallel.WorkerError as e:
+        print(f"jaxnav: {e}; the chunks finished so far are kept (--resume)", file=sys.stderr)
+        return 1
+    finally:
+        if client is not None:
+            client.close()
     paths = report.write_report(result.dataset, out, overwrite=True)
     print(report.markdown_by_satellites(report.table_by_satellites(result.dataset)))
     stats = result.stats
@@ -57,7 +77,7 @@ def _demo(args) -> int:
 
     cfg = config.from_dict(DEMO_STUDY, modes=SimFactory.modes, systems=SimFactory.systems)
     return _run_study(cfg, SimFactory(cfg.scenario_dict), Path(args.out), args.resume,
-                      args.overwrite)
+                      args.overwrite, workers=args.workers, scheduler=args.scheduler)
 
 
 def _sweep(args) -> int:
@@ -76,22 +96,24 @@ def _sweep(args) -> int:
         return 2
     try:
         if args.check:
-            return _check_study(cfg, factory, args.config, args.force)
+            return _check_study(cfg, factory, args.config, args.force,
+                                1 if args.scheduler else args.workers)
         if args.out is None:
             print("jaxnav sweep: --out is required (or --check to validate only)",
                   file=sys.stderr)
             return 2
-        return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite, args.force)
+        return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite, args.force,
+                          workers=args.workers, scheduler=args.scheduler)
     except config.ConfigError as e:  # found when the plan turns seconds into epochs
         print(f"jaxnav sweep: invalid study: {args.config}: {e}", file=sys.stderr)
         return 2
 
 
-def _check_study(cfg, factory, path, force: bool) -> int:
+def _check_study(cfg, factory, path, force: bool, workers: int) -> int:
     """``jaxnav sweep --check``: every pre-work check, a summary, no file written."""
     from jaxnav.study import sweep
 
-    plan = sweep.check_study(cfg, factory, force=force)
+    plan = sweep.check_study(cfg, factory, force=force, workers=workers)
     groups = len(cfg.modes) * len(cfg.systems)
     line = (f"{path}: valid; {groups} group(s) ({', '.join(cfg.modes)} x "
             f"{', '.join(cfg.systems)}) x {plan.n_per_group} scenarios = "
@@ -100,7 +122,7 @@ def _check_study(cfg, factory, path, force: bool) -> int:
     estimate = getattr(factory, "memory_bytes", None)
     if estimate is not None:
         need = estimate(cfg, rows=plan.max_rows, chunk_epochs=cfg.chunk_size * plan.window)
-        line += f"; memory about {need['total'] / 1e9:.2f} GB"
+        line += f"; memory about {need['total'] / 1e9:.2f} GB per worker, {workers} worker(s)"
     print(line)
     return 0
 
@@ -138,6 +160,28 @@ def _delegate(module: str):
     return run
 
 
+def _workers(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= 1")
+    return n
+
+
+def _parallel_options(p):
+    from jaxnav.study.parallel import default_workers
+
+    n = default_workers()
+    env = os.environ.get("JAXNAV_WORKERS")
+    p.add_argument("--workers", type=_workers, default=_workers(env) if env else n,
+                   help=f"worker processes on this machine (default: $JAXNAV_WORKERS, else every "
+                        f"core, {n}; 1 runs in this process)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="run the chunks on a running Dask cluster (docs/parallel.md)")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="jaxnav", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -146,6 +190,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="demo-out", help="output folder")
     p.add_argument("--resume", action="store_true", help="reuse completed chunks in --out")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result")
+    _parallel_options(p)
     p.set_defaults(func=_demo)
 
     p = sub.add_parser("sweep", help="run a study defined in a TOML file")
@@ -157,6 +202,7 @@ def main(argv=None) -> int:
                    help="run a study whose memory estimate exceeds the memory available")
     p.add_argument("--check", action="store_true",
                    help="validate the study (schema, plan, memory) and print its size; no run")
+    _parallel_options(p)
     p.set_defaults(func=_sweep)
 
     p = sub.add_parser("list", help="what the registries hold: PPP modes, systems, presets")

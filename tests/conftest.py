@@ -44,6 +44,11 @@ if os.environ.get("JAXNAV_TYPECHECK", "1") != "0":
         raise RuntimeError("jaxnav was imported before tests/conftest.py installed the type checks")
     jaxtyping.install_import_hook(list(TYPECHECKED_PACKAGES), "beartype.beartype")
 
+# The CLI's sweeps in this process (default --workers: every core). The suite already runs on
+# two xdist workers, so Dask worker processes would only oversubscribe the cores; the Dask path
+# is tested on its own in tests/test_parallel.py.
+os.environ.setdefault("JAXNAV_WORKERS", "1")
+
 HEAVY_GROUP = "heavy"
 # Work units that take longest (docs/testing.md, measured on 2 cores), started first so that
 # neither worker is left with a long unit at the end; the rest keep their collection order.

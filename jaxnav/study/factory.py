@@ -134,6 +134,7 @@ class SimFactory:
 
     def __init__(self, table: dict | None = None):
         table = dict(table or {})
+        self._init_args = (dict(table),)
         t = schema.check_section("scenario", table, SCENARIO_SCHEMA, error=ConfigError)
         if "gps" not in t.get("constellations", ("gps",)):
             schema.fail("scenario.constellations", table["constellations"],
@@ -164,6 +165,11 @@ class SimFactory:
             slip_flags=t.get("slip_flags", "detector"),
         )
         self.ins_grade = grades[1]
+
+    def __reduce__(self):
+        # A factory crosses to Dask workers as its [scenario] table: the drive and the compiled
+        # simulators are rebuilt there (they are large, and compiled functions do not pickle).
+        return type(self), self._init_args
 
     def fingerprint(self) -> str:
         return json.dumps(self.table, sort_keys=True)

@@ -120,6 +120,7 @@ class ReplayFactory(_RecordedFilter, SimFactory):
         t = schema.check_section("scenario", dict(table), REPLAY_SCHEMA, required=_REQUIRED,
                                  error=ConfigError)
         base = Path(base_dir) if base_dir is not None else Path.cwd()
+        self._init_args = (dict(table), base.resolve())  # what a Dask worker rebuilds it from
         self.paths = {}
         for key in ("obs", "nav", "sp3", "clk"):
             names = t[key] if key == "sp3" else (t[key],)
@@ -284,6 +285,7 @@ class SimulatedTwin(_RecordedFilter, SimFactory):
     def __init__(self, replay: ReplayFactory):
         keep = ("drive_seed", "imu_grade", "ins_grade", "odometer", "bssd", "constellations")
         super().__init__({k: v for k, v in replay.table.items() if k in keep})
+        self._init_args = (replay,)
         self.replay = replay
         self.table = {"twin_of": replay.table}
         # as many slots per constellation as the window has satellites above the mask

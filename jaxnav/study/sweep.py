@@ -312,34 +312,37 @@ def available_memory_bytes() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def _check_memory(cfg: StudyConfig, factory, *, rows: int, chunk_epochs: int, force: bool):
+def _check_memory(cfg: StudyConfig, factory, *, rows: int, chunk_epochs: int, force: bool,
+                  workers: int = 1):
     estimate = getattr(factory, "memory_bytes", None)
     if estimate is None or force:
         return
     need = estimate(cfg, rows=rows, chunk_epochs=chunk_epochs)
     have = available_memory_bytes()
-    if need["total"] <= have:
+    if need["total"] * workers <= have:
         return
     key = max(("scenario.duration_s", "drive"), ("study.chunk_size", "chunk"),
               key=lambda kv: need[kv[1]])[0]
+    each = f" per worker, x {workers} workers" if workers > 1 else ""
     raise ConfigError(
-        f"the study needs about {need['total'] / 1e9:.1f} GB ({need['drive'] / 1e9:.1f} GB for "
-        f"{rows} realisation(s) of the drive held at once, {need['chunk'] / 1e9:.1f} GB for a "
-        f"chunk of {cfg.chunk_size} scenario windows) and {have / 1e9:.1f} GB are available: "
-        f"lower {key}, or pass --force to run it anyway"
+        f"the study needs about {need['total'] / 1e9:.1f} GB{each} ({need['drive'] / 1e9:.1f} GB "
+        f"for {rows} realisation(s) of the drive held at once, {need['chunk'] / 1e9:.1f} GB for "
+        f"a chunk of {cfg.chunk_size} scenario windows) and {have / 1e9:.1f} GB are available: "
+        f"lower {key}{', or --workers' if workers > 1 else ''}, or pass --force to run it anyway"
     )
 
 
-def check_study(cfg: StudyConfig, factory, *, force: bool = False) -> Plan:
+def check_study(cfg: StudyConfig, factory, *, force: bool = False, workers: int = 1) -> Plan:
     """Every check a study passes before any work (``ConfigError`` naming the key): the schema,
     the memory estimate for the drive alone, the timeline and plan (seconds -> epochs, outage
-    placements), the memory estimate for the plan, and satellites_kept against the scenario's
-    slots. Returns the plan; touches no file (``jaxnav sweep --check``)."""
+    placements), the memory estimate for the plan (times the local ``workers``, each holding its
+    own chunk), and satellites_kept against the scenario's slots. Returns the plan; touches no
+    file (``jaxnav sweep --check``)."""
     validate(cfg, modes=getattr(factory, "modes", None), systems=getattr(factory, "systems", None))
     _check_memory(cfg, factory, rows=1, chunk_epochs=0, force=force)  # the drive alone
     plan = make_plan(cfg, factory.timeline(cfg))
     _check_memory(cfg, factory, rows=plan.max_rows, chunk_epochs=cfg.chunk_size * plan.window,
-                  force=force)
+                  force=force, workers=workers)
     n_slots = getattr(factory, "n_slots", None)
     over = [k for k in cfg.satellites_kept if n_slots is not None and k != ALL and k > n_slots]
     if over:
@@ -348,6 +351,46 @@ def check_study(cfg: StudyConfig, factory, *, force: bool = False) -> Plan:
             "satellite slots, or 'all'"
         )
     return plan
+
+
+def _run_distributed(plan, factory, groups, done, store, bar, stats, on_chunk, config_hash,
+                     client, workers):
+    """The pending chunks on Dask workers (``parallel.run_chunks``), persisted as they come."""
+    from jaxnav.study import parallel
+
+    todo = [(g, j) for g in range(len(groups)) for j in range(plan.n_chunks)
+            if (g, j) not in done]
+    if not todo:
+        return
+    own = client is None
+    if own:
+        bar.set_postfix_str(f"starting {workers} workers")
+        client = parallel.local_client(workers)
+    stats["n_workers"] = len(client.scheduler_info()["workers"])
+    bar.set_postfix_str(f"{stats['n_workers']} workers: compiling")
+    job = {"config_hash": config_hash, "factory": factory, "plan": plan}
+
+    def persist(g, j, out, delta):
+        store.write_chunk(g, j, out)
+        n = out["max_2d_m"].shape[0]
+        for k in parallel._STAT_KEYS:
+            stats[k] += delta[k]
+        stats["max_realizations_held"] = max(stats["max_realizations_held"],
+                                             delta["realizations_held"])
+        stats["chunks_computed"] += 1
+        stats["scenarios_computed"] += n
+        bar.set_postfix_str(f"{stats['n_workers']} workers")
+        bar.update(n)
+        if on_chunk is not None:
+            on_chunk(g, j)
+
+    try:
+        parallel.run_chunks(client, job, todo, groups, persist)
+    finally:
+        if own:
+            cluster = client.cluster
+            client.close()
+            cluster.close()
 
 
 def run_sweep(
@@ -361,6 +404,8 @@ def run_sweep(
     devices: Sequence | None = None,
     on_chunk: Callable[[int, int], None] | None = None,
     force: bool = False,
+    workers: int = 1,
+    client=None,
 ) -> SweepResult:
     """Run (or resume) a sweep into ``out_dir`` and return its Dataset (module docstring).
 
@@ -371,10 +416,14 @@ def run_sweep(
     scenario). ``on_chunk(group, chunk)`` is called after each chunk is persisted. A factory
     with ``memory_bytes(cfg, rows, chunk_epochs)`` has its estimate checked against the memory
     available before the drive is built and again once the plan is known; beyond it the study
-    is refused (``ConfigError`` naming the key to change) unless ``force``.
+    is refused (``ConfigError`` naming the key to change) unless ``force``. ``workers`` > 1
+    runs the chunks on a Dask ``LocalCluster`` of that many single-threaded processes, and a
+    Dask ``client`` on its cluster (``jaxnav.study.parallel``); either gives the same dataset.
     """
     t_wall = time.perf_counter()
-    plan = check_study(cfg, factory, force=force)
+    if workers < 1:
+        raise ValueError(f"workers = {workers}: expected at least 1")
+    plan = check_study(cfg, factory, force=force, workers=workers if client is None else 1)
     ops = getattr(factory, "ops", None) or tight_ops()
     ops_for = getattr(factory, "ops_for", None)  # per (mode, system) when the factory varies it
     fingerprint = factory.fingerprint() if hasattr(factory, "fingerprint") else ""
@@ -433,6 +482,10 @@ def run_sweep(
         disable=not progress, dynamic_ncols=True,
     )
     try:
+        if client is not None or workers > 1:
+            _run_distributed(plan, factory, groups, done, store, bar, stats, on_chunk,
+                             config_hash, client, workers)
+            done = store.done()
         for g, (mode, system) in enumerate(groups):
             todo = [j for j in range(plan.n_chunks) if (g, j) not in done]
             if not todo:
