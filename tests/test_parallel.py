@@ -112,8 +112,9 @@ def test_a_worker_killed_mid_sweep_changes_nothing(reference, client, tmp_path):
     _same(r.dataset, reference)
 
 
-def test_interrupted_on_two_workers_resumes_on_one(reference, client, tmp_path):
-    _wait_for_workers(client, 2)  # the nanny restarts the worker killed above
+def test_interrupted_on_two_workers_resumes_on_one(reference, tmp_path):
+    """Two workers of the sweep's own LocalCluster (``workers=2``, started while the study is
+    checked), interrupted after three chunks; the cluster closes and one worker finishes."""
     out = tmp_path / "out"
 
     class Stop(Exception):
@@ -125,7 +126,7 @@ def test_interrupted_on_two_workers_resumes_on_one(reference, client, tmp_path):
             raise Stop
 
     with pytest.raises(Stop):
-        _run(out, client=client, on_chunk=stop_after_three)
+        _run(out, workers=2, on_chunk=stop_after_three)
     n_kept = len(list((out / "chunks").glob("*.npz")))
     assert 3 <= n_kept < 12
     r = _run(out, workers=1, resume=True)

@@ -71,6 +71,33 @@ def local_client(workers: int):
     return Client(cluster)
 
 
+class StartingClient:
+    """A ``local_client(workers)`` started in a thread, so that the worker processes boot (and
+    import JAX) while the client checks the study and simulates the drive."""
+
+    def __init__(self, workers: int):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="jaxnav-cluster")
+        self._future = self._pool.submit(local_client, workers)
+
+    def get(self):
+        """The client, once its cluster is up (start-up errors are raised here)."""
+        return self._future.result()
+
+    def close(self) -> None:
+        """Close the client and its cluster (waiting for a start still under way)."""
+        try:
+            client = self._future.result()
+        except Exception:  # noqa: BLE001  (a cluster that never started has nothing to close)
+            client = None
+        if client is not None:
+            cluster = client.cluster
+            client.close()
+            cluster.close()
+        self._pool.shutdown()
+
+
 def _chunk_task(job: dict, g: int, j: int, mode: str, system: str) -> tuple[dict, dict]:
     """On a worker: chunk ``j`` of group ``g``; returns its arrays and the timing deltas."""
     import jax

@@ -362,10 +362,9 @@ def _run_distributed(plan, factory, groups, done, store, bar, stats, on_chunk, c
             if (g, j) not in done]
     if not todo:
         return
-    own = client is None
-    if own:
+    if isinstance(client, parallel.StartingClient):
         bar.set_postfix_str(f"starting {workers} workers")
-        client = parallel.local_client(workers)
+        client = client.get()
     stats["n_workers"] = len(client.scheduler_info()["workers"])
     bar.set_postfix_str(f"{stats['n_workers']} workers: compiling")
     job = {"config_hash": config_hash, "factory": factory, "plan": plan}
@@ -384,13 +383,7 @@ def _run_distributed(plan, factory, groups, done, store, bar, stats, on_chunk, c
         if on_chunk is not None:
             on_chunk(g, j)
 
-    try:
-        parallel.run_chunks(client, job, todo, groups, persist)
-    finally:
-        if own:
-            cluster = client.cluster
-            client.close()
-            cluster.close()
+    parallel.run_chunks(client, job, todo, groups, persist)
 
 
 def run_sweep(
@@ -423,7 +416,24 @@ def run_sweep(
     t_wall = time.perf_counter()
     if workers < 1:
         raise ValueError(f"workers = {workers}: expected at least 1")
-    plan = check_study(cfg, factory, force=force, workers=workers if client is None else 1)
+    if client is not None or workers == 1:
+        return _run_sweep(cfg, factory, out_dir, resume, overwrite, progress, devices, on_chunk,
+                          force, 1, client, t_wall)
+    from jaxnav.study import parallel
+
+    starting = parallel.StartingClient(workers)  # boots while the study is checked
+    try:
+        return _run_sweep(cfg, factory, out_dir, resume, overwrite, progress, devices, on_chunk,
+                          force, workers, starting, t_wall)
+    finally:
+        starting.close()
+
+
+def _run_sweep(cfg, factory, out_dir, resume, overwrite, progress, devices, on_chunk, force,
+               workers, client, t_wall) -> SweepResult:
+    """``run_sweep``'s body; ``client``: None (in-process), a Dask client or a StartingClient."""
+    # the memory check counts this machine's workers (an external cluster's are elsewhere)
+    plan = check_study(cfg, factory, force=force, workers=workers)
     ops = getattr(factory, "ops", None) or tight_ops()
     ops_for = getattr(factory, "ops_for", None)  # per (mode, system) when the factory varies it
     fingerprint = factory.fingerprint() if hasattr(factory, "fingerprint") else ""
@@ -490,11 +500,14 @@ def run_sweep(
             todo = [j for j in range(plan.n_chunks) if (g, j) not in done]
             if not todo:
                 continue
-            bar.set_postfix_str(f"{mode}/{system}")
+            # a group's first chunk compiles its programs: shown as a phase, not as 0 scen/s
+            bar.set_postfix_str(f"{mode}/{system}: compiling")
             g_ops = ops_for(mode, system) if ops_for is not None else ops
             runner = _GroupRunner(plan, factory, g_ops, mode, system, mesh, stats)
-            for j in todo:
+            for k, j in enumerate(todo):
                 out = runner.chunk(j)
+                if k == 0:
+                    bar.set_postfix_str(f"{mode}/{system}")
                 store.write_chunk(g, j, out)
                 n = out["max_2d_m"].shape[0]
                 stats["chunks_computed"] += 1
