@@ -109,12 +109,17 @@ def _sweep(args) -> int:
         return 2
 
 
-def _check_study(cfg, factory, path, force: bool, workers: int) -> int:
+def _check_study(cfg, factory, path, force: bool, workers: int | str) -> int:
     """``jaxnav sweep --check``: every pre-work check, a summary, no file written."""
     from jaxnav.study import sweep
+    from jaxnav.study.parallel import auto_workers
 
-    plan = sweep.check_study(cfg, factory, force=force, workers=workers)
+    plan = sweep.check_study(cfg, factory, force=force, workers=1 if workers == "auto" else workers)
     groups = len(cfg.modes) * len(cfg.systems)
+    if workers == "auto":  # what the run would choose, and its memory check
+        workers = auto_workers(groups * plan.n_per_group)
+        if workers > 1:
+            sweep.check_study(cfg, factory, force=force, workers=workers)
     line = (f"{path}: valid; {groups} group(s) ({', '.join(cfg.modes)} x "
             f"{', '.join(cfg.systems)}) x {plan.n_per_group} scenarios = "
             f"{groups * plan.n_per_group} scenarios in {plan.n_chunks} chunk(s) per group; "
@@ -160,24 +165,27 @@ def _delegate(module: str):
     return run
 
 
-def _workers(text: str) -> int:
+def _workers(text: str) -> int | str:
+    if text.strip() == "auto":
+        return "auto"
     try:
         n = int(text)
     except ValueError:
         n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= 1")
+    if n < 1:  # also $JAXNAV_WORKERS: argparse converts a string default with this type
+        raise argparse.ArgumentTypeError(
+            f"{text!r} (from --workers or $JAXNAV_WORKERS): expected 'auto' or a whole number "
+            ">= 1")
     return n
 
 
 def _parallel_options(p):
-    from jaxnav.study.parallel import default_workers
+    from jaxnav.study.parallel import AUTO_MIN_SCENARIOS, default_workers
 
-    n = default_workers()
-    env = os.environ.get("JAXNAV_WORKERS")
-    p.add_argument("--workers", type=_workers, default=_workers(env) if env else n,
-                   help=f"worker processes on this machine (default: $JAXNAV_WORKERS, else every "
-                        f"core, {n}; 1 runs in this process)")
+    p.add_argument("--workers", type=_workers, default=os.environ.get("JAXNAV_WORKERS", "auto"),
+                   help=f"worker processes on this machine: N (1 runs in this process) or auto "
+                        f"(default, or $JAXNAV_WORKERS): every core, {default_workers()}, for "
+                        f"studies of {AUTO_MIN_SCENARIOS:,} scenarios or more, else 1")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="run the chunks on a running Dask cluster (docs/parallel.md)")
 

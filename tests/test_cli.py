@@ -115,6 +115,32 @@ def test_check_prints_the_study_size_and_writes_nothing(tmp_path, capsys, monkey
     assert "--out is required" in capsys.readouterr().err
 
 
+def test_workers_auto_runs_a_small_study_in_process(tmp_path, capsys, monkeypatch):
+    """``--workers auto`` (the default outside the suite) keeps a 6-scenario study in one
+    process, below parallel.AUTO_MIN_SCENARIOS, and the threshold switches to every core."""
+    from jaxnav.study import parallel
+
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY)
+    monkeypatch.setenv("JAXNAV_WORKERS", "auto")
+    assert cli.main(["sweep", str(cfg), "--check"]) == 0
+    assert "1 worker(s)" in capsys.readouterr().out
+    assert parallel.auto_workers(parallel.AUTO_MIN_SCENARIOS - 1) == 1
+    assert parallel.auto_workers(parallel.AUTO_MIN_SCENARIOS) == parallel.default_workers()
+
+
+@pytest.mark.parametrize("flag, env", [(["--workers", "two"], None), ([], "0")])
+def test_a_bad_worker_count_is_a_clear_error(tmp_path, capsys, monkeypatch, flag, env):
+    if env is not None:
+        monkeypatch.setenv("JAXNAV_WORKERS", env)  # it used to raise while building the parser
+    with pytest.raises(SystemExit) as e:
+        cli.main(["demo", "--out", str(tmp_path / "out"), *flag])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "JAXNAV_WORKERS" in err and "'auto' or a whole number >= 1" in err, err
+    assert not (tmp_path / "out").exists()
+
+
 def test_tiny_sweep_writes_results_tables_and_plots(tmp_path, goldens, capsys):
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(TINY)

@@ -47,6 +47,19 @@ def default_workers() -> int:
         return os.cpu_count() or 1
 
 
+#: Below this many scenarios ``workers = "auto"`` runs in-process. Every worker pays its own
+#: start-up and compilation (with a cold cache, 2 workers compiling at once on 2 cores take
+#: ~35 s each against ~18 s alone) and two busy workers run ~1.6x slower each on this 2-core
+#: machine (shared L3), so the reference sweep breaks even near 5,000 scenarios
+#: (benchmarks/RESULTS.md, "sweep_throughput --workers 2").
+AUTO_MIN_SCENARIOS = 10_000
+
+
+def auto_workers(n_scenarios: int) -> int:
+    """``workers = "auto"``: every core for a study of at least ``AUTO_MIN_SCENARIOS``, else 1."""
+    return default_workers() if n_scenarios >= AUTO_MIN_SCENARIOS else 1
+
+
 def _worker_env() -> dict[str, str]:
     """Environment of LocalCluster workers: the shared compilation cache, single-threaded BLAS."""
     cache = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(

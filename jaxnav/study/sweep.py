@@ -397,7 +397,7 @@ def run_sweep(
     devices: Sequence | None = None,
     on_chunk: Callable[[int, int], None] | None = None,
     force: bool = False,
-    workers: int = 1,
+    workers: int | str = 1,
     client=None,
 ) -> SweepResult:
     """Run (or resume) a sweep into ``out_dir`` and return its Dataset (module docstring).
@@ -412,10 +412,17 @@ def run_sweep(
     is refused (``ConfigError`` naming the key to change) unless ``force``. ``workers`` > 1
     runs the chunks on a Dask ``LocalCluster`` of that many single-threaded processes, and a
     Dask ``client`` on its cluster (``jaxnav.study.parallel``); either gives the same dataset.
+    ``workers = "auto"``: every core when the study is large enough to gain from it
+    (``parallel.auto_workers``), else in-process.
     """
     t_wall = time.perf_counter()
-    if workers < 1:
-        raise ValueError(f"workers = {workers}: expected at least 1")
+    if workers == "auto":
+        from jaxnav.study import parallel
+
+        n = len(cfg.modes) * len(cfg.systems) * check_study(cfg, factory, force=force).n_per_group
+        workers = 1 if client is not None else parallel.auto_workers(n)
+    if not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers = {workers!r}: expected 'auto' or a whole number >= 1")
     if client is not None or workers == 1:
         return _run_sweep(cfg, factory, out_dir, resume, overwrite, progress, devices, on_chunk,
                           force, 1, client, t_wall)
