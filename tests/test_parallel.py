@@ -159,8 +159,9 @@ def test_cli_unreachable_scheduler_is_a_clear_error(tmp_path, capsys, monkeypatc
 
 
 @pytest.mark.full
-def test_cli_three_local_workers(reference, tmp_path):
-    _same(_cli_sweep(tmp_path, "--workers", "3"), reference, attrs=False)
+@pytest.mark.parametrize("n", [3, 4])  # 4 on 2 cores: oversubscribed, still the same numbers
+def test_cli_local_workers(reference, tmp_path, n):
+    _same(_cli_sweep(tmp_path, "--workers", str(n)), reference, attrs=False)
 
 
 def _free_port() -> int:
