@@ -112,14 +112,9 @@ def _sweep(args) -> int:
 def _check_study(cfg, factory, path, force: bool, workers: int | str) -> int:
     """``jaxnav sweep --check``: every pre-work check, a summary, no file written."""
     from jaxnav.study import sweep
-    from jaxnav.study.parallel import auto_workers
 
-    plan = sweep.check_study(cfg, factory, force=force, workers=1 if workers == "auto" else workers)
+    plan, workers = sweep.plan_and_workers(cfg, factory, workers, force=force)  # as a run would
     groups = len(cfg.modes) * len(cfg.systems)
-    if workers == "auto":  # what the run would choose, and its memory check
-        workers = auto_workers(groups * plan.n_per_group)
-        if workers > 1:
-            sweep.check_study(cfg, factory, force=force, workers=workers)
     line = (f"{path}: valid; {groups} group(s) ({', '.join(cfg.modes)} x "
             f"{', '.join(cfg.systems)}) x {plan.n_per_group} scenarios = "
             f"{groups * plan.n_per_group} scenarios in {plan.n_chunks} chunk(s) per group; "

@@ -13,12 +13,12 @@ pending chunks are therefore cut into one contiguous block per worker, and each 
 are submitted with a loose preference for its worker (``allow_other_workers``: a dead or busy
 worker's chunks may run elsewhere) and a priority that runs them in order.
 
-Workers are single-threaded processes (XLA:CPU runs these small-matrix scans on one thread, and
-two processes gave 1.86x the throughput of one, benchmarks/RESULTS.md). ``LocalCluster`` workers
-share JAX's persistent compilation cache (``JAX_COMPILATION_CACHE_DIR``, default
-``~/.cache/jaxnav/jax-compilation-cache``), so a shape compiled by one worker is loaded by the
-others. The factory and plan are sent once per worker (``Client.scatter``); a factory must be
-picklable, and jaxnav's factories pickle as their ``[scenario]`` table (caches are rebuilt).
+Workers are single-threaded processes (XLA:CPU runs these small-matrix scans on one thread).
+``LocalCluster`` workers share JAX's persistent compilation cache (``JAX_COMPILATION_CACHE_DIR``,
+default ``~/.cache/jaxnav/jax-compilation-cache``), so a later run loads what an earlier one
+compiled. The factory and plan are sent once per worker (``Client.scatter``); a factory must be
+picklable (the simulator's pickles as its ``[scenario]`` table and its simulated drive; compiled
+functions are rebuilt). Measured speed-ups and the ``"auto"`` threshold: docs/parallel.md.
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def _chunk_task(job: dict, g: int, j: int, mode: str, system: str) -> tuple[dict
     import jax
     from jax.sharding import Mesh
 
-    from jaxnav.study.sweep import _GroupRunner, tight_ops
+    from jaxnav.study.sweep import _GroupRunner, group_ops
 
     if _STATE.get("key") != job["config_hash"]:
         _STATE.clear()
@@ -125,13 +125,11 @@ def _chunk_task(job: dict, g: int, j: int, mode: str, system: str) -> tuple[dict
     if held is None or held[0] != g:
         _STATE.pop("runner", None)  # free the previous group's realisations first
         factory, plan = job["factory"], job["plan"]
-        ops_for = getattr(factory, "ops_for", None)
-        ops = ops_for(mode, system) if ops_for is not None else (
-            getattr(factory, "ops", None) or tight_ops())
         stats = dict.fromkeys(_STAT_KEYS, 0.0) | {"full_runs": 0, "max_realizations_held": 0,
                                                    "shards": 0}
         mesh = Mesh(np.array(jax.local_devices()[:1]), ("batch",))
-        held = (g, _GroupRunner(plan, factory, ops, mode, system, mesh, stats))
+        held = (g, _GroupRunner(plan, factory, group_ops(factory, mode, system), mode, system,
+                                mesh, stats))
         _STATE["runner"] = held
     runner = held[1]
     before = {k: runner.stats[k] for k in _STAT_KEYS}
@@ -150,7 +148,7 @@ def blocks(todo: list, n_workers: int) -> list[list]:
 def run_chunks(client, job: dict, todo: list, groups: list, on_result):
     """Compute the chunks ``todo`` [(g, j)] on ``client``'s workers; ``on_result(g, j, out,
     delta)`` is called on the client for each as it finishes (any order)."""
-    from distributed import as_completed
+    from distributed import KilledWorker, as_completed
 
     workers = sorted(client.scheduler_info()["workers"])
     if not workers:
@@ -165,8 +163,6 @@ def run_chunks(client, job: dict, todo: list, groups: list, on_result):
                 f"-{g}-{j}", workers=[w], allow_other_workers=True, priority=-k, pure=False,
             )
             futures[f] = (g, j)
-    from distributed import KilledWorker
-
     try:
         for f in as_completed(futures):
             g, j = futures[f]

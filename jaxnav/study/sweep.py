@@ -125,6 +125,15 @@ def tight_ops() -> FilterOps:
     )
 
 
+def group_ops(factory, mode: str, system: str) -> FilterOps:
+    """The FilterOps of a (mode, system) group: the factory's ``ops_for``, else its ``ops``,
+    else ``tight_ops()``."""
+    ops_for = getattr(factory, "ops_for", None)  # per group when the factory varies it
+    if ops_for is not None:
+        return ops_for(mode, system)
+    return getattr(factory, "ops", None) or tight_ops()
+
+
 class SweepResult(NamedTuple):
     dataset: xr.Dataset
     path: Path  # OUT/results.nc
@@ -353,6 +362,31 @@ def check_study(cfg: StudyConfig, factory, *, force: bool = False, workers: int 
     return plan
 
 
+def _persist_chunk(store, stats, bar, on_chunk, g: int, j: int, out: dict) -> None:
+    """Chunk ``j`` of group ``g`` written, counted, shown, and announced to ``on_chunk``."""
+    store.write_chunk(g, j, out)
+    n = out["max_2d_m"].shape[0]
+    stats["chunks_computed"] += 1
+    stats["scenarios_computed"] += n
+    bar.update(n)
+    if on_chunk is not None:
+        on_chunk(g, j)
+
+
+def plan_and_workers(cfg: StudyConfig, factory, workers: int | str, *, force: bool = False
+                     ) -> tuple[Plan, int]:
+    """``check_study`` with ``workers = "auto"`` resolved (``parallel.auto_workers`` of the
+    study's scenario count) and the memory checked for the count chosen."""
+    plan = check_study(cfg, factory, force=force, workers=1 if workers == "auto" else workers)
+    if workers == "auto":
+        from jaxnav.study import parallel
+
+        workers = parallel.auto_workers(len(cfg.modes) * len(cfg.systems) * plan.n_per_group)
+        if workers > 1:
+            plan = check_study(cfg, factory, force=force, workers=workers)
+    return plan, workers
+
+
 def _run_distributed(plan, factory, groups, done, store, bar, stats, on_chunk, config_hash,
                      client, workers):
     """The pending chunks on Dask workers (``parallel.run_chunks``), persisted as they come."""
@@ -370,18 +404,12 @@ def _run_distributed(plan, factory, groups, done, store, bar, stats, on_chunk, c
     job = {"config_hash": config_hash, "factory": factory, "plan": plan}
 
     def persist(g, j, out, delta):
-        store.write_chunk(g, j, out)
-        n = out["max_2d_m"].shape[0]
         for k in parallel._STAT_KEYS:
             stats[k] += delta[k]
         stats["max_realizations_held"] = max(stats["max_realizations_held"],
                                              delta["realizations_held"])
-        stats["chunks_computed"] += 1
-        stats["scenarios_computed"] += n
         bar.set_postfix_str(f"{stats['n_workers']} workers")
-        bar.update(n)
-        if on_chunk is not None:
-            on_chunk(g, j)
+        _persist_chunk(store, stats, bar, on_chunk, g, j, out)
 
     parallel.run_chunks(client, job, todo, groups, persist)
 
@@ -416,33 +444,32 @@ def run_sweep(
     (``parallel.auto_workers``), else in-process.
     """
     t_wall = time.perf_counter()
-    if workers == "auto":
-        from jaxnav.study import parallel
-
-        n = len(cfg.modes) * len(cfg.systems) * check_study(cfg, factory, force=force).n_per_group
-        workers = 1 if client is not None else parallel.auto_workers(n)
-    if not isinstance(workers, int) or workers < 1:
+    if workers != "auto" and (not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers = {workers!r}: expected 'auto' or a whole number >= 1")
+    if client is not None:
+        workers = 1  # the memory check counts this machine's workers; a cluster's are elsewhere
+    plan = None
+    if workers == "auto":  # decided by the plan, so the cluster cannot boot during the checks
+        plan, workers = plan_and_workers(cfg, factory, workers, force=force)
     if client is not None or workers == 1:
         return _run_sweep(cfg, factory, out_dir, resume, overwrite, progress, devices, on_chunk,
-                          force, 1, client, t_wall)
+                          force, 1, client, t_wall, plan)
     from jaxnav.study import parallel
 
     starting = parallel.StartingClient(workers)  # boots while the study is checked
     try:
         return _run_sweep(cfg, factory, out_dir, resume, overwrite, progress, devices, on_chunk,
-                          force, workers, starting, t_wall)
+                          force, workers, starting, t_wall, plan)
     finally:
         starting.close()
 
 
 def _run_sweep(cfg, factory, out_dir, resume, overwrite, progress, devices, on_chunk, force,
-               workers, client, t_wall) -> SweepResult:
-    """``run_sweep``'s body; ``client``: None (in-process), a Dask client or a StartingClient."""
-    # the memory check counts this machine's workers (an external cluster's are elsewhere)
-    plan = check_study(cfg, factory, force=force, workers=workers)
-    ops = getattr(factory, "ops", None) or tight_ops()
-    ops_for = getattr(factory, "ops_for", None)  # per (mode, system) when the factory varies it
+               workers, client, t_wall, plan) -> SweepResult:
+    """``run_sweep``'s body; ``client``: None (in-process), a Dask client or a StartingClient;
+    ``plan``: the checked plan, or None to check the study here."""
+    if plan is None:
+        plan = check_study(cfg, factory, force=force, workers=workers)
     fingerprint = factory.fingerprint() if hasattr(factory, "fingerprint") else ""
     devs = _devices(devices)
     mesh = Mesh(np.array(devs), ("batch",))
@@ -509,19 +536,13 @@ def _run_sweep(cfg, factory, out_dir, resume, overwrite, progress, devices, on_c
                 continue
             # a group's first chunk compiles its programs: shown as a phase, not as 0 scen/s
             bar.set_postfix_str(f"{mode}/{system}: compiling")
-            g_ops = ops_for(mode, system) if ops_for is not None else ops
-            runner = _GroupRunner(plan, factory, g_ops, mode, system, mesh, stats)
+            runner = _GroupRunner(plan, factory, group_ops(factory, mode, system), mode, system,
+                                  mesh, stats)
             for k, j in enumerate(todo):
                 out = runner.chunk(j)
                 if k == 0:
                     bar.set_postfix_str(f"{mode}/{system}")
-                store.write_chunk(g, j, out)
-                n = out["max_2d_m"].shape[0]
-                stats["chunks_computed"] += 1
-                stats["scenarios_computed"] += n
-                bar.update(n)
-                if on_chunk is not None:
-                    on_chunk(g, j)
+                _persist_chunk(store, stats, bar, on_chunk, g, j, out)
             del runner
     finally:
         bar.close()
