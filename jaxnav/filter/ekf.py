@@ -125,6 +125,94 @@ class UpdateResult(NamedTuple):
     dof: Int[Array, ""]  # number of used rows
 
 
+class Innovations(NamedTuple):
+    """The prior's part of an update, computed once (O(n^2 m)) and shared by every solve that
+    follows with a different set of used rows (the post-fit redo, ``apply_update``)."""
+
+    nu: Float[Array, " m"]  # y - H x
+    HP: Float[Array, "m n"]  # H P
+    S: Float[Array, "m m"]  # H P H^T + R
+    gated: Bool[Array, " m"]  # offered rows rejected by the chi-square gate
+    offered: Bool[Array, " m"]  # mask and not gated: the rows a first update uses
+
+
+def innovations(
+    x: Float[Array, " n"],
+    P: Float[Array, "n n"],
+    y: Float[Array, " m"],
+    H: Float[Array, "m n"],
+    R: Float[Array, "m m"],
+    mask: Bool[Array, " m"],
+    gate: Float[ArrayLike, ""] | Float[Array, " m"] = jnp.inf,
+) -> Innovations:
+    """nu = y - H x, S = H P H^T + R; row i is gated when nu_i^2 > gate * S_ii (``gate`` one
+    value or one per row; ``inf`` disables it)."""
+    mask = jnp.asarray(mask, dtype=bool)
+    nu = y - H @ x
+    HP = H @ P
+    S = HP @ H.T + R
+    gated = mask & (nu * nu > gate * jnp.diag(S))
+    return Innovations(nu=nu, HP=HP, S=S, gated=gated, offered=mask & ~gated)
+
+
+def _used_system(inn: Innovations, used: Bool[Array, " m"]):
+    """S_u (used rows' block of S, unit diagonal elsewhere), its Cholesky factor, nu_u.
+
+    Unused rows are decoupled with a unit diagonal, which gives them zero gain without
+    changing shapes; S_u equals H_u P H_u^T + R_u with the unused rows of H, R zeroed."""
+    pair = used[:, None] & used[None, :]
+    S_u = jnp.where(pair, inn.S, 0.0) + jnp.diag(jnp.where(used, 0.0, 1.0))
+    return jsl.cho_factor(S_u, lower=True), jnp.where(used, inn.nu, 0.0)
+
+
+def postfit_normalized(
+    inn: Innovations, R: Float[Array, "m m"], used: Bool[Array, " m"]
+) -> Float[Array, " m"]:
+    """Normalised post-fit residuals r_i / sqrt(C_ii) of the rows ``used`` in an update, without
+    forming its P+: for used rows r = y - H x+ = R_u S_u^-1 nu_u and C = R - H P+ H^T =
+    R_u S_u^-1 R_u (Teunissen's w-test; R may be correlated, as BSSD's). A row whose own
+    observation the update absorbs entirely (redundancy C_ii / R_ii < 1e-6, e.g. the phase of a
+    satellite whose ambiguity just restarted) cannot be tested and gets 0, as do unused rows."""
+    chol, nu_u = _used_system(inn, used)
+    R_u = jnp.where(used[:, None] & used[None, :], R, 0.0)
+    r = R_u @ jsl.cho_solve(chol, nu_u)
+    W = jsl.solve_triangular(chol[0], R_u, lower=True)  # L^-1 R_u: C = W^T W
+    c = jnp.sum(W * W, axis=0)
+    testable = used & (c > 1e-6 * jnp.diag(R))
+    return jnp.where(testable, r / jnp.sqrt(jnp.where(testable, c, 1.0)), 0.0)
+
+
+def apply_update(
+    x: Float[Array, " n"],
+    P: Float[Array, "n n"],
+    inn: Innovations,
+    H: Float[Array, "m n"],
+    R: Float[Array, "m m"],
+    used: Bool[Array, " m"],
+) -> UpdateResult:
+    """Joseph-form update with the rows ``used`` (a subset of ``inn.offered``):
+    K = P H_u^T S_u^-1, x+ = x + K nu_u, P+ = (I - K H_u) P (I - K H_u)^T + K R_u K^T
+    (unused rows zeroed in H, nu and R). No used row: x and P are returned bit-for-bit."""
+    chol, nu_u = _used_system(inn, used)
+    K = jsl.cho_solve(chol, jnp.where(used[:, None], inn.HP, 0.0)).T  # K^T = S_u^-1 H_u P
+    H_u = jnp.where(used[:, None], H, 0.0)
+    R_u = jnp.where(used[:, None] & used[None, :], R, 0.0)
+    IKH = jnp.eye(x.shape[0]) - K @ H_u
+    P_new = IKH @ P @ IKH.T + K @ R_u @ K.T
+    P_new = 0.5 * (P_new + P_new.T)
+    any_used = jnp.any(used)
+    return UpdateResult(
+        x=jnp.where(any_used, x + K @ nu_u, x),
+        P=jnp.where(any_used, P_new, P),
+        innovation=inn.nu,
+        innovation_var=jnp.diag(inn.S),
+        used=used,
+        gated=inn.gated,
+        nis=nu_u @ jsl.cho_solve(chol, nu_u),
+        dof=jnp.sum(used),
+    )
+
+
 # Functions called on host arrays (tests, post-processing) are jitted: one compiled kernel per
 # argument shape instead of one per primitive (inside another jit they are inlined).
 @jax.jit
@@ -137,47 +225,11 @@ def masked_update(
     mask: Bool[Array, " m"],
     gate: Float[ArrayLike, ""] | Float[Array, " m"] = jnp.inf,
 ) -> UpdateResult:
-    """Joseph-form update with masked, chi-square-gated rows.
-
-    nu = y - H x, S = H P H^T + R; row i is gated when nu_i^2 > gate * S_ii (``gate`` one
-    value or one per row). With the used rows
-    selected, K = P H_u^T S_u^-1, x+ = x + K nu_u, P+ = (I - K H_u) P (I - K H_u)^T + K R_u K^T.
-    Unused rows are zeroed in H and nu and decoupled in R (unit diagonal), which gives them zero
-    gain without changing shapes. ``gate=inf`` disables gating.
-    """
-    mask = jnp.asarray(mask, dtype=bool)
-    nu = y - H @ x
-    S = H @ P @ H.T + R
-    s_diag = jnp.diag(S)
-    gated = mask & (nu * nu > gate * s_diag)
-    used = mask & ~gated
-
-    pair = used[:, None] & used[None, :]
-    H_u = jnp.where(used[:, None], H, 0.0)
-    nu_u = jnp.where(used, nu, 0.0)
-    R_u = jnp.where(pair, R, 0.0) + jnp.diag(jnp.where(used, 0.0, 1.0))
-    S_u = H_u @ P @ H_u.T + R_u
-
-    chol = jsl.cho_factor(S_u, lower=True)
-    K = jsl.cho_solve(chol, H_u @ P).T  # S_u symmetric: K^T = S_u^-1 H_u P
-    n = x.shape[0]
-    IKH = jnp.eye(n) - K @ H_u
-    P_new = IKH @ P @ IKH.T + K @ R_u @ K.T
-    P_new = 0.5 * (P_new + P_new.T)
-    x_new = x + K @ nu_u
-
-    any_used = jnp.any(used)
-    nis = nu_u @ jsl.cho_solve(chol, nu_u)
-    return UpdateResult(
-        x=jnp.where(any_used, x_new, x),
-        P=jnp.where(any_used, P_new, P),
-        innovation=nu,
-        innovation_var=s_diag,
-        used=used,
-        gated=gated,
-        nis=nis,
-        dof=jnp.sum(used),
-    )
+    """Joseph-form update with masked, chi-square-gated rows: ``innovations`` (gating
+    nu_i^2 > gate * S_ii) then ``apply_update`` with the rows that passed. ``gate=inf``
+    disables gating."""
+    inn = innovations(x, P, y, H, R, mask, gate)
+    return apply_update(x, P, inn, H, R, inn.offered)
 
 
 @jax.jit

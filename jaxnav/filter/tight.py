@@ -11,8 +11,8 @@ common median, so a clock jump or a drift after an outage is not mistaken for an
 chi-square gate on each innovation, and a normalised post-fit residual test (covariance
 R - H P+ H^T), repeated ``postfit_passes`` times: when the worst used row exceeds
 ``postfit_sigma``, it is removed (a code row takes every row of its satellite with it, as S002
-rejects the same satellite's phase and Doppler with its code) and the update redone; the
-satellite's ambiguity is kept (an outlier is not a slip).
+rejects the same satellite's phase and Doppler with its code) and the rows left are tested
+again; the satellite's ambiguity is kept (an outlier is not a slip).
 
 Optional non-holonomic constraint (full-IMU ``InsSystem`` only; ``TightFilter.nhc_sigma_m_s``,
 off by default, and then the step is unchanged): the two NHC rows of
@@ -264,34 +264,38 @@ def _clock_jump(
 def _update_with_postfit(
     cfg: ppp.PppConfig, P: Float[Array, "n n"], rows: ppp.Rows, mask: Bool[Array, " m"]
 ) -> tuple[ekf.UpdateResult, Bool[Array, " S"]]:
-    """Masked update, then up to ``postfit_passes`` times: if the worst normalised post-fit
-    residual (``ekf.normalized_residuals``) exceeds the threshold, drop it and update again
-    from the same prior. A code outlier drops every row of its satellite (S002 5.3: its phase
-    and Doppler go with it); another row only itself. Returns the update and the slots whose
-    rows were dropped (their ambiguities are kept: an outlier is not a slip)."""
+    """Masked update, with up to ``postfit_passes`` post-fit tests before it: if the worst
+    normalised post-fit residual (``ekf.postfit_normalized``) exceeds the threshold, it is
+    dropped and the rows left are tested again, as an update redone from the same prior would
+    be. A code outlier drops every row of its satellite (S002 5.3: its phase and Doppler go with
+    it); another row only itself. Returns the update and the slots whose rows were dropped
+    (their ambiguities are kept: an outlier is not a slip).
+
+    Cost (issue 19): P H^T and S are formed once; each test is an m x m Cholesky factorisation
+    and solve, and only the final set of rows is applied to P (one Joseph update instead of
+    one per pass; ``ekf.masked_update`` + ``ekf.normalized_residuals`` per pass are the
+    reference it agrees with, tests/test_tight.py)."""
     n = P.shape[0]
     x0 = jnp.zeros(n)
     # constraint rows are neither gated nor tested post-fit: they are a vehicle model, not an
     # observation that can be an outlier
     gnss = rows.kind != core_rows.KIND_CONSTRAINT
     gate = jnp.where(gnss, cfg.gate_chi2, jnp.inf)
-    res = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, mask, gate)
+    inn = ekf.innovations(x0, P, rows.dz, rows.H, rows.R, mask, gate)
+    used = inn.offered
     dropped = jnp.zeros(cfg.n_slots, bool)
-    if cfg.postfit_sigma is None:  # decided at trace time: a None field has no leaves
-        return res, dropped
-    is_code = rows.kind == ppp.KIND_CODE
-    for _ in range(cfg.postfit_passes):
-        resid = ekf.normalized_residuals(res.x, res.P, rows.dz, rows.H, rows.R)
-        score = jnp.where(res.used & gnss, jnp.abs(resid), 0.0)
-        worst = jnp.argmax(score)
-        reject = score[worst] > cfg.postfit_sigma
-        drop = jnp.where(is_code[worst], rows.slot == rows.slot[worst],
-                         jnp.arange(rows.dz.shape[0]) == worst) & gnss
-        again = ekf.masked_update(x0, P, rows.dz, rows.H, rows.R, res.used & ~(drop & reject),
-                                  gate)
-        res = jax.tree.map(lambda a, b, r=reject: jnp.where(r, b, a), res, again)
-        dropped = dropped.at[rows.slot[worst]].max(reject & is_code[worst])
-    return res, dropped
+    if cfg.postfit_sigma is not None:  # decided at trace time: a None field has no leaves
+        is_code = rows.kind == ppp.KIND_CODE
+        for _ in range(cfg.postfit_passes):
+            resid = ekf.postfit_normalized(inn, rows.R, used)
+            score = jnp.where(used & gnss, jnp.abs(resid), 0.0)
+            worst = jnp.argmax(score)
+            reject = score[worst] > cfg.postfit_sigma
+            drop = jnp.where(is_code[worst], rows.slot == rows.slot[worst],
+                             jnp.arange(rows.dz.shape[0]) == worst) & gnss
+            used = used & ~(drop & reject)
+            dropped = dropped.at[rows.slot[worst]].max(reject & is_code[worst])
+    return ekf.apply_update(x0, P, inn, rows.H, rows.R, used), dropped
 
 
 def _nhc_rows(tf: TightFilter, layout: StateLayout, nav) -> core_rows.Rows:
