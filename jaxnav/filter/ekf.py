@@ -127,7 +127,7 @@ class UpdateResult(NamedTuple):
 
 class Innovations(NamedTuple):
     """The prior's part of an update, computed once (O(n^2 m)) and shared by every solve that
-    follows with a different set of used rows (the post-fit redo, ``apply_update``)."""
+    follows with a different set of used rows (the post-fit tests, ``apply_update``)."""
 
     nu: Float[Array, " m"]  # y - H x
     HP: Float[Array, "m n"]  # H P
