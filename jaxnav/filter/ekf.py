@@ -155,14 +155,16 @@ def innovations(
     return Innovations(nu=nu, HP=HP, S=S, gated=gated, offered=mask & ~gated)
 
 
-def _used_system(inn: Innovations, used: Bool[Array, " m"]):
-    """S_u (used rows' block of S, unit diagonal elsewhere), its Cholesky factor, nu_u.
+def _used_system(inn: Innovations, R: Float[Array, "m m"], used: Bool[Array, " m"]):
+    """Cholesky factor of S_u (the used rows' block of S, unit diagonal elsewhere), nu_u and
+    R_u (used rows' block of R, zero elsewhere).
 
     Unused rows are decoupled with a unit diagonal, which gives them zero gain without
     changing shapes; S_u equals H_u P H_u^T + R_u with the unused rows of H, R zeroed."""
     pair = used[:, None] & used[None, :]
     S_u = jnp.where(pair, inn.S, 0.0) + jnp.diag(jnp.where(used, 0.0, 1.0))
-    return jsl.cho_factor(S_u, lower=True), jnp.where(used, inn.nu, 0.0)
+    return (jsl.cho_factor(S_u, lower=True), jnp.where(used, inn.nu, 0.0),
+            jnp.where(pair, R, 0.0))
 
 
 def postfit_normalized(
@@ -173,8 +175,7 @@ def postfit_normalized(
     R_u S_u^-1 R_u (Teunissen's w-test; R may be correlated, as BSSD's). A row whose own
     observation the update absorbs entirely (redundancy C_ii / R_ii < 1e-6, e.g. the phase of a
     satellite whose ambiguity just restarted) cannot be tested and gets 0, as do unused rows."""
-    chol, nu_u = _used_system(inn, used)
-    R_u = jnp.where(used[:, None] & used[None, :], R, 0.0)
+    chol, nu_u, R_u = _used_system(inn, R, used)
     r = R_u @ jsl.cho_solve(chol, nu_u)
     W = jsl.solve_triangular(chol[0], R_u, lower=True)  # L^-1 R_u: C = W^T W
     c = jnp.sum(W * W, axis=0)
@@ -193,10 +194,9 @@ def apply_update(
     """Joseph-form update with the rows ``used`` (a subset of ``inn.offered``):
     K = P H_u^T S_u^-1, x+ = x + K nu_u, P+ = (I - K H_u) P (I - K H_u)^T + K R_u K^T
     (unused rows zeroed in H, nu and R). No used row: x and P are returned bit-for-bit."""
-    chol, nu_u = _used_system(inn, used)
+    chol, nu_u, R_u = _used_system(inn, R, used)
     K = jsl.cho_solve(chol, jnp.where(used[:, None], inn.HP, 0.0)).T  # K^T = S_u^-1 H_u P
     H_u = jnp.where(used[:, None], H, 0.0)
-    R_u = jnp.where(used[:, None] & used[None, :], R, 0.0)
     IKH = jnp.eye(x.shape[0]) - K @ H_u
     P_new = IKH @ P @ IKH.T + K @ R_u @ K.T
     P_new = 0.5 * (P_new + P_new.T)
@@ -244,7 +244,8 @@ def normalized_residuals(
     the post-fit covariance C = R - H P+ H^T (x+, P+ the update's result; for rows that were in
     the update). A row whose own observation the update absorbs entirely (redundancy
     C_ii / R_ii < 1e-6, e.g. the phase of a satellite whose ambiguity just restarted) cannot be
-    tested and gets 0."""
+    tested and gets 0. The filters use ``postfit_normalized``, which needs no P+; this direct
+    form is its reference (tests/test_postfit_update.py)."""
     nu = y - H @ x
     c = jnp.diag(R) - jnp.einsum("ij,jk,ik->i", H, P, H)
     r_ii = jnp.diag(R)

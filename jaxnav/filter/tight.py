@@ -271,10 +271,10 @@ def _update_with_postfit(
     it); another row only itself. Returns the update and the slots whose rows were dropped
     (their ambiguities are kept: an outlier is not a slip).
 
-    Cost (issue 19): P H^T and S are formed once; each test is an m x m Cholesky factorisation
+    Cost (issue 19): H P and S are formed once; each test is an m x m Cholesky factorisation
     and solve, and only the final set of rows is applied to P (one Joseph update instead of
     one per pass; ``ekf.masked_update`` + ``ekf.normalized_residuals`` per pass are the
-    reference it agrees with, tests/test_tight.py)."""
+    reference it agrees with, tests/test_postfit_update.py)."""
     n = P.shape[0]
     x0 = jnp.zeros(n)
     # constraint rows are neither gated nor tested post-fit: they are a vehicle model, not an
