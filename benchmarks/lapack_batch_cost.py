@@ -1,13 +1,17 @@
 """Cost of the tight update's building blocks at the engine's batch (64 scenarios, one core):
 batched LAPACK calls (Cholesky, triangular solves) against XLA matrix products of the same
 sizes (S 36 x 36, 30 states). Prints microseconds per scenario-epoch (best of 200 calls).
-Run: ``python benchmarks/lapack_batch_cost.py`` (< 1 min). Issue 19's measurement.
+Run: ``python benchmarks/lapack_batch_cost.py`` (< 1 min; ``--quick``: 20 calls each).
+Issue 19's measurement; appends its table to RESULTS.md like every benchmark.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
+import sys
 import time
+from pathlib import Path
 
 # one OpenBLAS thread, as roofline.py (must precede the first numpy / jaxlib import)
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -16,6 +20,9 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import jax.scipy.linalg as jsl  # noqa: E402
 import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchutil as bu  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 BATCH, M_ROWS, N_STATES = 64, 36, 30
@@ -33,7 +40,12 @@ def per_epoch_us(fn, *args, calls: int = 200) -> float:
     return best / BATCH * 1e6
 
 
-def main() -> None:
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="20 calls per case instead of 200")
+    ap.add_argument("--results", type=Path, default=bu.RESULTS_MD, help="RESULTS.md to append to")
+    args = ap.parse_args(argv)
+    calls = 20 if args.quick else 200
     rng = np.random.default_rng(0)
     A = rng.normal(size=(BATCH, M_ROWS, M_ROWS))
     S = A @ A.transpose(0, 2, 1) + M_ROWS * np.eye(M_ROWS)
@@ -56,9 +68,17 @@ def main() -> None:
         "Joseph (I - K H) P (I - K H)^T": (
             lambda p, k, h: (eye_n - k.T @ h) @ p @ (eye_n - k.T @ h).T, P, HP, H),
     }
-    for name, (fn, *args) in cases.items():
-        print(f"{name:34s} {per_epoch_us(fn, *args):7.2f} us per scenario-epoch", flush=True)
+    md = ["| operation (batch 64) | us per scenario-epoch |", "|---|---|"]
+    figures = {}
+    for name, (fn, *operands) in cases.items():
+        us = per_epoch_us(fn, *operands, calls=calls)
+        print(f"{name:34s} {us:7.2f} us per scenario-epoch", flush=True)
+        md.append(f"| {name} | {us:.1f} |")
+        figures[name] = round(us, 2)
+    bu.finish("LAPACK calls vs matrix products at batch 64", args.quick, md, figures,
+              args.results)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
