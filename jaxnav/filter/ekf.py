@@ -123,6 +123,7 @@ class UpdateResult(NamedTuple):
     gated: Bool[Array, " m"]  # rows that were offered (mask true) but rejected by the gate
     nis: Float[Array, ""]  # normalised innovation squared of the used rows
     dof: Int[Array, ""]  # number of used rows
+    logdet: Float[Array, ""]  # log det S_u of the used rows (0 with none): jaxnav.filter.tune
 
 
 class Innovations(NamedTuple):
@@ -195,7 +196,10 @@ def apply_update(
     K = P H_u^T S_u^-1, x+ = x + K nu_u, P+ = (I - K H_u) P (I - K H_u)^T + K R_u K^T
     (unused rows zeroed in H, nu and R). No used row: x and P are returned bit-for-bit."""
     chol, nu_u, R_u = _used_system(inn, R, used)
-    K = jsl.cho_solve(chol, jnp.where(used[:, None], inn.HP, 0.0)).T  # K^T = S_u^-1 H_u P
+    # [K^T | a] = S_u^-1 [H_u P | nu_u]: one solve for the gain and the NIS nu_u^T a
+    X = jsl.cho_solve(chol, jnp.concatenate([jnp.where(used[:, None], inn.HP, 0.0),
+                                             nu_u[:, None]], axis=1))
+    K, a = X[:, :-1].T, X[:, -1]
     H_u = jnp.where(used[:, None], H, 0.0)
     IKH = jnp.eye(x.shape[0]) - K @ H_u
     P_new = IKH @ P @ IKH.T + K @ R_u @ K.T
@@ -208,8 +212,10 @@ def apply_update(
         innovation_var=jnp.diag(inn.S),
         used=used,
         gated=inn.gated,
-        nis=nu_u @ jsl.cho_solve(chol, nu_u),
+        nis=nu_u @ a,
         dof=jnp.sum(used),
+        # unused rows have a unit diagonal in the factor: log 1 = 0
+        logdet=2.0 * jnp.sum(jnp.log(jnp.diagonal(chol[0]))),
     )
 
 

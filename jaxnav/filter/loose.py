@@ -191,6 +191,7 @@ class EpochOutput(NamedTuple):
     P_nav: jnp.ndarray  # [9, 9] covariance of pos (rad, rad, m), vel, att
     nis: jnp.ndarray  # normalised innovation squared of the used rows
     dof: jnp.ndarray  # number of used rows
+    logdet: jnp.ndarray  # log det of the used rows' innovation covariance (jaxnav.filter.tune)
     applied: Applied
     static: jnp.ndarray  # stationarity detector decision
     zupt_stat: jnp.ndarray  # detector statistic T (variance ratio)
@@ -602,6 +603,7 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
         P_nav=res.P[:n_nav, :n_nav],
         nis=res.nis,
         dof=res.dof,
+        logdet=res.logdet,
         applied=applied,
         static=static,
         zupt_stat=t_stat,

@@ -83,6 +83,7 @@ class EpochOutput(NamedTuple):
     P_nav: Float[Array, "k k"]  # covariance of the navigation block (pos, vel, attitude)
     nis: Float[Array, ""]  # normalised innovation squared of the used rows
     dof: Int[Array, ""]  # number of used rows
+    logdet: Float[Array, ""]  # log det of the used rows' innovation covariance (filter/tune.py)
     n_sat: Int[Array, ""]  # slots with at least one used row
     used_by_kind: Int[Array, "4"]  # used rows per kind (code, phase, Doppler, ionosphere)
     gated_by_kind: Int[Array, "4"]  # offered rows rejected by the gates / outlier tests
@@ -366,6 +367,7 @@ def epoch_step(tf: TightFilter, carry: Carry, inp: EpochInput) -> tuple[Carry, E
         P_nav=tf.system.nav_covariance(nav, res.P, layout),
         nis=res.nis,
         dof=res.dof,
+        logdet=res.logdet,
         n_sat=jnp.sum(used_slot),
         # the GNSS kinds only (constraint rows, kind 4, are dropped from the counts)
         used_by_kind=jnp.zeros(core_rows.N_GNSS_KINDS, int).at[rows.kind].add(
