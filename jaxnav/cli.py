@@ -217,13 +217,15 @@ def main(argv=None) -> int:
         ("lc", "loosely coupled INS on a recorded IMU + GNSS drive (see `jaxnav lc --help`)"),
         ("ins", "GNSS/INS on a recorded IMU log, loose (.pos) or tight (raw UBX observations) "
                 "(see `jaxnav ins --help`)"),
+        ("tune", "fit a car configuration's noise figures to a recorded drive by maximum "
+                 "likelihood (see `jaxnav tune --help`)"),
     ):
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=_delegate(name))
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv and argv[0] in ("ppp", "lc", "ins"):  # their own parsers take every remaining argument
+    if argv and argv[0] in ("ppp", "lc", "ins", "tune"):  # their parsers take the rest
         return importlib.import_module(f"jaxnav.apps.{argv[0]}").main(argv[1:])
     args = parser.parse_args(argv)
     if getattr(args, "resume", False) and getattr(args, "overwrite", False):

@@ -203,13 +203,14 @@ def imu_error_model(cfg: CarConfig) -> ins_errors.ImuErrorModel:
     White noise density -> ARW / VRW (deg/s/sqrt(Hz) = deg/sqrt(s)); the sensor's own density
     and the installed vibration density (per body axis) add in quadrature.
     """
-    gyro = np.hypot(cfg.imu_errors_gyro_noise_deg_s_sqrt_hz,
-                    np.asarray(cfg.imu_errors_gyro_vibration_deg_s_sqrt_hz))
-    accel = np.hypot(cfg.imu_errors_accel_noise_ug_sqrt_hz,
-                     np.asarray(cfg.imu_errors_accel_vibration_ug_sqrt_hz))
+    # jnp throughout: ``jaxnav tune`` traces this with the fitted values as JAX arrays
+    gyro = jnp.hypot(cfg.imu_errors_gyro_noise_deg_s_sqrt_hz,
+                     jnp.asarray(cfg.imu_errors_gyro_vibration_deg_s_sqrt_hz))
+    accel = jnp.hypot(cfg.imu_errors_accel_noise_ug_sqrt_hz,
+                      jnp.asarray(cfg.imu_errors_accel_vibration_ug_sqrt_hz))
     return ins_errors.ImuErrorModel(
-        accel_vrw_m_s_sqrt_s=jnp.asarray(accel * UG_M_S2),
-        gyro_arw_rad_sqrt_s=jnp.asarray(np.radians(gyro)),
+        accel_vrw_m_s_sqrt_s=accel * UG_M_S2,
+        gyro_arw_rad_sqrt_s=jnp.radians(gyro),
         accel_bias_sigma_m_s2=cfg.imu_errors_accel_bias_gm_sigma_mg * 1e3 * UG_M_S2,
         accel_bias_tau_s=cfg.imu_errors_accel_bias_gm_tau_s,
         gyro_bias_sigma_rad_s=cfg.imu_errors_gyro_bias_gm_sigma_deg_h * _DEG_H,
@@ -217,5 +218,5 @@ def imu_error_model(cfg: CarConfig) -> ins_errors.ImuErrorModel:
         accel_scale_sigma=cfg.imu_errors_accel_scale_ppm * 1e-6,
         gyro_scale_sigma=cfg.imu_errors_gyro_scale_ppm * 1e-6,
         accel_bias_ton_sigma_m_s2=cfg.imu_errors_accel_bias_turn_on_mg * 1e3 * UG_M_S2,
-        gyro_bias_ton_sigma_rad_s=math.radians(cfg.imu_errors_gyro_bias_turn_on_deg_s),
+        gyro_bias_ton_sigma_rad_s=jnp.radians(cfg.imu_errors_gyro_bias_turn_on_deg_s),
     )

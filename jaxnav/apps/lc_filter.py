@@ -74,6 +74,14 @@ def build_filter(
 def initial_carry(cfg: CarConfig, lf: loose.LooseFilter, drive: Drive) -> loose.Carry:
     """Levelled start at the first fix; heading from the course if already moving, else
     unknown until the in-motion alignment (module docstring)."""
+    nav0, sig, moving = initial_state(cfg, lf, drive)
+    carry = loose.initial_carry(lf, nav0, sig)
+    return carry._replace(aligned=jnp.asarray(moving))
+
+
+def initial_state(cfg: CarConfig, lf: loose.LooseFilter, drive: Drive):
+    """(navigation state, its sigmas, moving at the start) of ``initial_carry``, on the host
+    (``jaxnav tune`` builds the carry from them with traced noise parameters)."""
     fix = drive.fix_init
     moving = drive.start_speed_m_s > cfg.alignment_min_speed_m_s
     euler0 = np.array(loose.align_from_gnss(fix.vel_enu, drive.level_f_b))
@@ -92,8 +100,7 @@ def initial_carry(cfg: CarConfig, lf: loose.LooseFilter, drive: Drive) -> loose.
                      else lf.cfg.align_prior_sigma_rad),
     )
     vel0 = np.asarray(fix.vel_enu) if moving else np.zeros(3)
-    carry = loose.initial_carry(lf, loose.initial_nav(llh0, vel0, euler0), sig)
-    return carry._replace(aligned=jnp.asarray(bool(moving)))
+    return loose.initial_nav(llh0, vel0, euler0), sig, bool(moving)
 
 
 def epoch_inputs(cfg: CarConfig, drive: Drive, withheld=None) -> loose.EpochInput:

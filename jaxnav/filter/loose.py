@@ -71,6 +71,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from jaxnav import attitude, geodesy
 from jaxnav.core.states import StateLayout
@@ -103,11 +104,11 @@ class LooseConfig(eqx.Module):
     align_prior_sigma_rad: float = float(np.pi / np.sqrt(3.0))  # unknown heading: uniform
     pos_cov_scale: float = 1.0  # R = scale * fix covariance (S002 4.24: DOP scaling, no numbers)
     vel_cov_scale: float = 1.0
-    nhc_sigma_m_s: float = 1.0  # S003: 1 m/s (a 2-3 deg misalignment at 18-20 m/s)
+    nhc_sigma_m_s: Float[ArrayLike, ""] = 1.0  # S003: 1 m/s (a 2-3 deg misalignment at 18-20 m/s)
     odo_sigma_m_s: float = 0.1  # chosen: OBD-II 1 km/h quantum (0.08 m/s rms) + noise
     odo_scale_sigma: float = 0.01  # chosen: 1 % initial scale-factor uncertainty (tyres)
     odo_scale_rw: float = 0.0  # random-walk PSD sqrt [1/sqrt(s)] of the scale (0 = constant)
-    zupt_sigma_m_s: float = 0.02  # chosen: residual vibration of a stopped car
+    zupt_sigma_m_s: Float[ArrayLike, ""] = 0.02  # chosen: residual vibration of a stopped car
     zaru_sigma_rad_s: float | None = None  # None: gyro ARW / sqrt(epoch length)
     zupt_ref_var: float | None = None  # detector's initial reference: None = VRW^2 / dt_imu
     detector: cons.ZuptDetector = eqx.field(default_factory=cons.ZuptDetector)
