@@ -177,6 +177,8 @@ def tuned_toml(text: str, cfg: CarConfig, res: tn.FitResult, slots, source: str)
             lines.insert(idx + 1, entry)
     head = [f"# Tuned by jaxnav {jaxnav.__version__} tune from {source}: maximum likelihood of "
             f"the innovations (NLL {res.nll_start:.1f} -> {res.nll:.1f}).",
+            "# Lines marked 'jaxnav tune' hold fitted values; the other comments are the input's "
+            "and describe its own values.",
             "# Not identified by the data (left as fitted, weakly determined): "
             + (", ".join(n for n, ok in zip(res.names, res.identified, strict=True) if not ok)
                or "none")]
