@@ -139,6 +139,13 @@ def _format(v: float) -> str:
     return f"{v:.6g}"
 
 
+def _toml_value(v) -> str:
+    """A fitted value as TOML: a number, or a list for a vector key."""
+    if isinstance(v, tuple):
+        return "[" + ", ".join(_format(float(x)) for x in v) + "]"
+    return _format(float(v))
+
+
 def tuned_toml(text: str, cfg: CarConfig, res: tn.FitResult, slots, source: str) -> str:
     """The configuration ``text`` with the fitted values in place (comments kept)."""
     fitted = _with_values(cfg, slots, res.value.tolist())
@@ -155,9 +162,7 @@ def tuned_toml(text: str, cfg: CarConfig, res: tn.FitResult, slots, source: str)
         m = re.match(r"(\s*)([A-Za-z_]+)(\s*=\s*)", line)
         key = f"{section}.{m.group(2)}" if m else None
         if key in by_key:
-            v = getattr(fitted, _field(key))
-            val = ("[" + ", ".join(_format(float(x)) for x in v) + "]" if isinstance(v, tuple)
-                   else _format(float(v)))
+            val = _toml_value(getattr(fitted, _field(key)))
             starts = ", ".join(_format(float(res.start[j])) for j in by_key[key])
             facs = ", ".join(f"{res.factor()[j]:.2f}" for j in by_key[key])
             lines[n] = (f"{m.group(1)}{m.group(2)}{m.group(3)}{val}  # jaxnav tune: was "
@@ -166,9 +171,7 @@ def tuned_toml(text: str, cfg: CarConfig, res: tn.FitResult, slots, source: str)
     missing = [k for k in by_key if k not in done]
     for key in missing:  # a key the file left at its default: add it under its section
         sec, name = key.split(".")
-        v = getattr(fitted, _field(key))
-        val = ("[" + ", ".join(_format(float(x)) for x in v) + "]" if isinstance(v, tuple)
-               else _format(float(v)))
+        val = _toml_value(getattr(fitted, _field(key)))
         idx = next((i for i, ln in enumerate(lines) if re.match(rf"\s*\[{sec}\]", ln)), None)
         entry = f"{name} = {val}  # jaxnav tune (was the default)"
         if idx is None:
