@@ -83,13 +83,16 @@ def sim():
     return truth, ep, C, llh_ant, vel_ant
 
 
-def _run_from_rest(lf, samples, fix, inputs, sig):
+def _run_from_rest(lf, samples, fix, inputs, sig, smooth=False):
     """Start levelled from the first second's mean specific force, heading unknown (0),
-    position from the first fix (antenna lever rotated with that attitude), at rest; run."""
+    position from the first fix (antenna lever rotated with that attitude), at rest; run
+    (``smooth``: ``loose.run_smoother``, returning (forward, smoothed) outputs)."""
     euler0 = loose.align_from_gnss(jnp.zeros(3), samples.dv_b[0].sum(0)).at[2].set(0.0)
     lever_l = attitude.dcm_from_euler(euler0) @ LEVER_ANT_B
     llh0 = fix.llh[0] - geodesy.llh_rate_matrix(fix.llh[0]) @ lever_l
     carry = loose.initial_carry(lf, loose.initial_nav(llh0, jnp.zeros(3), euler0), sig)
+    if smooth:
+        return loose.run_smoother(lf, carry, inputs)
     return loose.run(lf, carry, inputs)[1]
 
 
@@ -119,7 +122,7 @@ def runs(sim):
     # Tilt prior: levelling with a 40 mg accelerometer bias is off by up to ~2.3 deg per axis.
     sig = NavSigmas(pos_m=SIGMA_POS_M, vel_m_s=SIGMA_VEL_M_S, roll_pitch_rad=0.05)
 
-    def one_run(key, pos_valid, nhc_valid, odo_valid, zupt_allowed):
+    def one_run(key, pos_valid, nhc_valid, odo_valid, zupt_allowed, smooth=False):
         k_imu, k_odo, k_pos, k_vel = jax.random.split(key, 4)
         dth, dv, imu_err = sensors.simulate_imu(
             k_imu, truth.dtheta_b[1:], truth.dv_b[1:], 1.0 / RATE_HZ, grade
@@ -135,7 +138,7 @@ def runs(sim):
         )  # fmt: skip
         samples = strapdown.ImuIncrements(dth.reshape(n_ep, K, 3), dv.reshape(n_ep, K, 3))
         inputs = loose.epoch_inputs(samples, fix, odo, odo_valid, nhc_valid, zupt_allowed)
-        out = _run_from_rest(lf, samples, fix, inputs, sig)
+        out = _run_from_rest(lf, samples, fix, inputs, sig, smooth)
         return out, imu_err.gyro_bias_rad_s[K - 1 :: K]
 
     t = np.arange(1, n_ep + 1)
@@ -157,8 +160,11 @@ def runs(sim):
     err = np.asarray(jax.vmap(_enu_errors, (0, None))(out.llh, ep.llh[1:]))
     C_hat = jax.vmap(jax.vmap(attitude.dcm_from_euler))(out.euler)
     eps = jax.vmap(jax.vmap(attitude.attitude_error), (0, None))(C_hat, sim[2][1:])
+    inputs = dict(keys=jnp.stack(keys), pos_valid=np.stack(pos_valid), nhc=np.stack(nhc),
+                  odo=np.stack(odo), zupt=np.stack(zupt))
     return dict(
-        out=out, names=names, t=t, err_enu=err, eps=np.asarray(eps), gyro_bias=gyro_bias, ep=ep
+        out=out, names=names, t=t, err_enu=err, eps=np.asarray(eps), gyro_bias=gyro_bias, ep=ep,
+        one_run=one_run, inputs=inputs,
     )
 
 
@@ -372,6 +378,77 @@ def test_time_correlated_fixes_keep_the_position_nees_in_its_band(gm_runs):
     assert avg["white"].mean() > hi  # the defect the states remove
 
 
+@pytest.fixture(scope="module")
+def smoothed(runs):
+    """The "full" and "turn_free" runs again through ``loose.run_smoother`` (same keys)."""
+    sel = np.isin(runs["names"], ["full", "turn_free"])
+    inp = runs["inputs"]
+    (fwd, smo), _ = jax.jit(jax.vmap(lambda *a: runs["one_run"](*a, smooth=True)))(
+        inp["keys"][sel], *(jnp.asarray(inp[k][sel]) for k in ("pos_valid", "nhc", "odo", "zupt"))
+    )
+    ep = runs["ep"]
+    err = {k: np.asarray(jax.vmap(_enu_errors, (0, None))(o.llh, ep.llh[1:]))
+           for k, o in (("forward", fwd), ("smoothed", smo))}
+    return dict(fwd=fwd, smo=smo, err=err, sel=sel, names=runs["names"][sel])
+
+
+def test_smoother_forward_pass_is_the_filter(runs, smoothed):
+    """Recording what the smoother needs does not change the forward filter: positions and
+    covariances equal those of ``loose.run`` to 1e-8 of a sigma (a different vmap batch may
+    round differently, which the closed loop carries along; measured 0 to ~1e-9)."""
+    fwd, ref = smoothed["fwd"], jax.tree.map(lambda a: np.asarray(a)[smoothed["sel"]],
+                                             runs["out"])
+    P = ref.P_nav
+    sd = np.sqrt(np.diagonal(P, axis1=-2, axis2=-1))
+    assert np.max(np.abs(np.asarray(fwd.llh) - ref.llh) / sd[..., :3]) < 1e-8
+    assert np.max(np.abs(np.asarray(fwd.P_nav) - P) / (sd[..., :, None] * sd[..., None, :])) < 1e-8
+
+
+def test_smoothed_position_nees_within_chi_square_band(runs, smoothed):
+    """Full GNSS: ensemble-mean position NEES of the smoothed solution (3 dof, N runs) in the
+    95 % chi-square band on average and at >= 85 % of the epochs (as the forward filter's in
+    test_position_nees_within_chi_square_band), and its position sigma below the forward one
+    at every epoch."""
+    full = smoothed["names"] == "full"
+    smo, fwd = smoothed["smo"], smoothed["fwd"]
+    dllh = np.asarray(smo.llh)[full] - np.asarray(runs["ep"].llh)[None, 1:]
+    P = np.asarray(smo.P_nav)[full][..., :3, :3]
+    nees = np.einsum("rti,rtij,rtj->rt", dllh, np.linalg.inv(P), dllh)[:, CONVERGED:]
+    avg = nees.mean(axis=0)
+    n = nees.shape[0]
+    lo, hi = (_chi2_quantile(3 * n, z) / n for z in (-1.959964, 1.959964))
+    inside = np.mean((avg > lo) & (avg < hi))
+    print(f"smoothed position NEES over {n} runs: mean {avg.mean():.2f}, {100 * inside:.0f} % "
+          f"of epochs in [{lo:.2f}, {hi:.2f}]")
+    assert lo < avg.mean() < hi
+    assert inside > 0.85
+    var_s = np.diagonal(np.asarray(smo.P_nav), axis1=-2, axis2=-1)
+    var_f = np.diagonal(np.asarray(fwd.P_nav), axis1=-2, axis2=-1)
+    assert np.all(var_s <= var_f * (1.0 + 1e-9))
+
+
+def test_smoothing_bridges_the_outage(runs, smoothed):
+    """30 s free-inertial outage through the turn: the smoother, which also sees the fixes after
+    it, ends far below the forward drift, and its horizontal NEES at mid-outage (2 dof, N runs)
+    lies in the 99 % chi-square band."""
+    t = runs["t"]
+    turn = smoothed["names"] == "turn_free"
+    inside = (t > OUTAGE_TURN[0]) & (t <= OUTAGE_TURN[1])
+    max2d = {k: np.linalg.norm(e[turn][:, inside, :2], axis=-1).max(axis=1).mean()
+             for k, e in smoothed["err"].items()}
+    k = int(np.nonzero(t == (OUTAGE_TURN[0] + OUTAGE_TURN[1]) // 2)[0][0])
+    smo = smoothed["smo"]
+    dllh = np.asarray(smo.llh)[turn][:, k, :2] - np.asarray(runs["ep"].llh)[k + 1, :2]
+    P = np.asarray(smo.P_nav)[turn][:, k, :2, :2]
+    nees = np.einsum("ri,rij,rj->r", dllh, np.linalg.inv(P), dllh).mean()
+    n = int(turn.sum())
+    lo, hi = (_chi2_quantile(2 * n, z) / n for z in (-2.575829, 2.575829))
+    print(f"turn outage, mean max 2D error: forward {max2d['forward']:.2f} m, smoothed "
+          f"{max2d['smoothed']:.2f} m; smoothed mid-outage NEES {nees:.2f} in [{lo:.2f}, {hi:.2f}]")
+    assert max2d["smoothed"] < 0.5 * max2d["forward"]
+    assert lo < nees < hi
+
+
 # ---- helpers (no filter run) ------------------------------------------------------------------
 def test_levelling_and_course_closed_form():
     euler = jnp.array([0.03, -0.05, 2.5])
@@ -408,3 +485,4 @@ def test_gnss_fixes_from_rtklib_solution():
         fix.cov_pos_enu[0], [[0.04, 0.01, 0.0], [0.01, 0.09, -0.01], [0.0, -0.01, 0.25]]
     )
     assert np.all(np.isfinite(np.asarray(fix.vel_enu)))
+

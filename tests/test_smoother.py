@@ -159,7 +159,7 @@ def test_error_state_form_equals_plain(lg):
         rec["dx"].append(res.x)
         rec["nav"].append(nominal)
     r = smoother.Record(*(jnp.stack(rec[k]) for k in ("Phi", "P_prior", "P_post", "dx", "nav")),
-                        sensors=None)
+                        sensors=None, x_post=jnp.zeros((T, N)))
     dx_s, P_s = smoother.error_state(r)
     x_s = np.asarray(r.nav - dx_s)
     d_x, d_P = _sigma_scaled(x_s - lg["xs"], np.asarray(P_s) - lg["Ps"], lg["Ps"])

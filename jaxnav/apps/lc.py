@@ -2,7 +2,7 @@
 
     jaxnav lc --imu IMU.csv --imu-tag IMU.csv.tag --gnss GNSS.pos --config CAR.toml
               [--outages SCHEDULE | --outage-grid START:STEP:LENGTH] [--duration S]
-              --out OUT.pos [--sweep DIR [--overwrite]]
+              --out OUT.pos [--smooth | --solution forward|combined] [--sweep DIR [--overwrite]]
 
 The filter is ``jaxnav.filter.loose`` (full IMU, 15/21/27 error states) aided by the positions
 (and, with ``gnss.use_velocity``, velocities) of an RTKLIB ``.pos`` track, with the vehicle
@@ -42,6 +42,11 @@ Data flow (documented choices where the sources are silent):
   attitude; velocity with the lever-arm rotation term) at every filter epoch, RTKLIB ``.pos``;
   outage epochs get Q = 7 (``jaxnav.io.Q_OUTAGE``), aided epochs keep the fix's Q and ns; sigmas
   from the filter covariance (position block rotated to ENU metres).
+- Smoothing (``--smooth`` = ``--solution combined``): the forward filter followed by the RTS
+  smoother (``loose.run_smoother``, ``jaxnav.filter.smoother``), i.e. RTKPOST's "combined"
+  solution, every epoch estimated from the whole drive; the ``.pos`` holds the smoothed track and
+  sigmas, and the outage report gives the forward maximum beside it. There is no "backward"
+  solution: an INS run backwards needs a reverse-time mechanization, which jaxnav does not have.
 - Per-outage report: start [s after t_imu0], length, distance travelled (RTK track), maximum and
   final 2D error against the RTK track (``jaxnav.study.metrics.window_metrics``: the ``.pos``
   itself is the reference, cm-level when fixed).
@@ -102,6 +107,7 @@ from jaxnav.apps.lc_filter import (  # noqa: F401
     plan_outages,
     reference_track,
     run_filter,
+    run_smoothed,
     solution_pos,
 )
 from jaxnav.apps.lc_sweep import (  # noqa: F401
@@ -116,6 +122,8 @@ from jaxnav.study import metrics as mt
 from jaxnav.study import outages as ot
 
 PROG = "jaxnav lc"
+#: ``--solution`` values (module docstring: no backward solution for an INS).
+SOLUTIONS = ("forward", "combined")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -142,6 +150,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="outages START, START+STEP, ... of LENGTH seconds")
     p.add_argument("--duration", type=float, help="process only the first DURATION s of the log")
     p.add_argument("--out", required=True, help="output .pos (INS at the antenna)")
+    s = p.add_mutually_exclusive_group()
+    s.add_argument("--solution", choices=SOLUTIONS, default="forward",
+                   help="forward filter, or combined = forward filter + RTS smoother (all data "
+                        "for every epoch, as RTKPOST's combined); default forward")
+    s.add_argument("--smooth", dest="solution", action="store_const", const="combined",
+                   help="same as --solution combined")
     p.add_argument("--sweep", metavar="DIR", help="also run the outage sweep of [sweep] into DIR")
     p.add_argument("--overwrite", action="store_true", help="replace an existing sweep in DIR")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -190,7 +204,13 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
     lf = build_filter(cfg, drive)
     carry = initial_carry(cfg, lf, drive)
     withheld = plan.withheld if plan is not None else np.zeros(drive.n_epochs, bool)
-    _, out = run_filter(lf, carry, epoch_inputs(cfg, drive, withheld))
+    inputs = epoch_inputs(cfg, drive, withheld)
+    smooth = getattr(args, "solution", "forward") == "combined"
+    if smooth:
+        out_fwd, out = run_smoothed(lf, carry, inputs)
+    else:
+        _, out = run_filter(lf, carry, inputs)
+        out_fwd = out
     jax.block_until_ready(out)
     t_run = time.perf_counter()
     sol = solution_pos(drive, lf, out, withheld)
@@ -198,7 +218,8 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
         args.out, sol, outage=withheld,
         comments=(
             f"jaxnav lc: loosely coupled INS ({cfg.imu_errors_states}) at the antenna; "
-            f"config {Path(args.config).name}",
+            f"config {Path(args.config).name}; solution "
+            f"{'combined (forward + RTS smoother)' if smooth else 'forward'}",
             f"first IMU sample {drive.t_imu0_gps_s:.3f} GPS s (origin of outage start times)",
         ),
         program=f"jaxnav {jaxnav.__version__}",
@@ -237,14 +258,22 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
     if plan is not None:
         m = outage_metrics(drive, sol.llh, out, plan)
         z2 = sigma_ratios(err, sol.sd_neu_m)
+        fwd_col = f" {'fwd_max_2d_m':>12}" if smooth else ""
+        if smooth:
+            llh_fwd = antenna_track(lf.system.lever_b, out_fwd)
+            m_fwd = outage_metrics(drive, llh_fwd, out_fwd, plan)
         print(f"{'outage':>8} {'start_s':>8} {'length_s':>8} {'dist_m':>8} {'max_2d_m':>9} "
-              f"{'final_2d_m':>10} {'z2_e':>6} {'z2_n':>6}")
+              f"{'final_2d_m':>10} {'z2_e':>6} {'z2_n':>6}{fwd_col}")
         for k, oid in enumerate(plan.ids):
             w = slice(int(plan.start_epoch[k]), int(plan.start_epoch[k] + plan.n_epochs[k]))
             ze, zn = np.mean(z2[w, :2], axis=0)
+            fwd_val = f" {float(m_fwd.max_2d_m[k]):12.3f}" if smooth else ""
             print(f"{oid:>8} {plan.start_s[k]:8.2f} {plan.length_s[k]:8.2f} "
                   f"{float(m.distance_m[k]):8.1f} {float(m.max_2d_m[k]):9.3f} "
-                  f"{float(m.end_2d_m[k]):10.3f} {ze:6.2f} {zn:6.2f}")
+                  f"{float(m.end_2d_m[k]):10.3f} {ze:6.2f} {zn:6.2f}{fwd_val}")
+        print(f"mean max 2D error over the {len(plan.ids)} outages: "
+              f"{float(np.mean(m.max_2d_m)):.3f} m"
+              + (f" (forward filter {float(np.mean(m_fwd.max_2d_m)):.3f} m)" if smooth else ""))
         ze, zn, zu = np.mean(z2[withheld], axis=0)
         print(f"sigma check over the {int(withheld.sum())} outage epochs: mean (error / sigma)^2 "
               f"E {ze:.2f}, N {zn:.2f}, U {zu:.2f} (1 = sigmas true; z2_e / z2_n per outage)")

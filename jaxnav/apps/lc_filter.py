@@ -162,6 +162,12 @@ def run_filter(lf: loose.LooseFilter, carry: loose.Carry, inputs: loose.EpochInp
     return loose.run(lf, carry, inputs)
 
 
+@eqx.filter_jit
+def run_smoothed(lf: loose.LooseFilter, carry: loose.Carry, inputs: loose.EpochInput):
+    """``loose.run_smoother`` compiled: (forward EpochOutput, RTS-smoothed EpochOutput)."""
+    return loose.run_smoother(lf, carry, inputs)
+
+
 # ----------------------------------------------------------------------------------------------
 # Outages
 # ----------------------------------------------------------------------------------------------

@@ -76,7 +76,7 @@ from jaxtyping import ArrayLike, Float
 from jaxnav import attitude, geodesy
 from jaxnav.core.states import StateLayout
 from jaxnav.filter import constraints as cons
-from jaxnav.filter import ekf
+from jaxnav.filter import ekf, smoother
 from jaxnav.filter.systems import InsSystem, NavSigmas
 from jaxnav.ins import errors as ins_errors
 from jaxnav.ins import strapdown
@@ -317,7 +317,8 @@ def _zaru_sigma(lf: LooseFilter):
 
 # ---- the epoch step ---------------------------------------------------------------------------
 def _propagate_covariance(lf: LooseFilter, layout, nav, mean_inputs, sensors, P, dt):
-    """P <- Phi P Phi^T + Qd with the system's F, G, Qc (+ the odometer scale state)."""
+    """P <- Phi P Phi^T + Qd with the system's F, G, Qc (+ the odometer scale state).
+    Returns (P, Phi)."""
     F_s, G_s, Qc_s = lf.system.dynamics(nav, mean_inputs, sensors)
     n_s, n = lf.system.layout.size, layout.size
     F, G, Qc = F_s, G_s, Qc_s
@@ -332,14 +333,15 @@ def _propagate_covariance(lf: LooseFilter, layout, nav, mean_inputs, sensors, P,
             Qc = Qc.at[m, m].set(lf.cfg.odo_scale_rw**2)
     Phi, Qd = ekf.discretize(F, G, Qc, dt, squarings=0)  # INS: ||F dt|| << 1 per substep
     _, P = ekf.predict(jnp.zeros(n), P, Phi, Qd)
-    return P
+    return P, Phi
 
 
 def _propagate_fix_bias(lf: LooseFilter, layout, P, carry: Carry, fix: GnssFix):
     """One epoch of the fix-bias process (module docstring): b <- A b with A = rho diag(min(1,
     C_k,ii / C_k-1,ii)), the rows and columns of b in P transformed with A, plus
     Q_k = [C_k - A C_k-1 A]+ (positive part), so that Var(b_k) follows C_k (held through
-    invalid fixes). Returns (b, P, C_k)."""
+    invalid fixes). Returns (b, P, C_k, scale): ``scale`` the diagonal transition of the
+    error state (A on the b block, 1 elsewhere)."""
     b = layout.sl("fix_bias")
     rho = jnp.exp(-lf.epoch_dt_s / lf.cfg.fix_bias_tau_s)
     C_prev = carry.fix_cov
@@ -353,7 +355,7 @@ def _propagate_fix_bias(lf: LooseFilter, layout, P, carry: Carry, fix: GnssFix):
     scale = jnp.ones(layout.size).at[b].set(a)
     P = P * scale[:, None] * scale[None, :]
     P = P.at[b, b].add(Q)
-    return a * carry.fix_bias, P, C_k
+    return a * carry.fix_bias, P, C_k, scale
 
 
 def _align_fix_bias(layout, P, fix_bias, fix_cov, C_b, C_fix, llh_fix, now):
@@ -361,13 +363,17 @@ def _align_fix_bias(layout, P, fix_bias, fix_cov, C_b, C_fix, llh_fix, now):
     error: with b_hat = 0, the position error equals -db exactly. Var(b) = C_b (the new
     ``fix_cov``), the position-bias covariance -A C_b (A: ENU metres to the (lat, lon, h) error
     units), the position block the full A C_fix A^T; without the cross term the filter would
-    take the two for independent and halve a variance it cannot reduce."""
+    take the two for independent and halve a variance it cannot reduce. Returns (b, P, C,
+    reset): ``reset`` flags the re-initialised error states (position and b, when ``now``)."""
     b, pos = layout.sl("fix_bias"), layout.sl("pos")
     A = jnp.linalg.inv(geodesy.llh_error_to_enu_matrix(llh_fix))
     P_new = P.at[b, :].set(0.0).at[:, b].set(0.0).at[b, b].set(C_b)
     P_new = P_new.at[pos, b].set(-A @ C_b).at[b, pos].set(-(A @ C_b).T)
     P_new = P_new.at[pos, pos].set(A @ C_fix @ A.T)
-    return jnp.where(now, 0.0, fix_bias), jnp.where(now, P_new, P), jnp.where(now, C_b, fix_cov)
+    idx = jnp.arange(P.shape[0])
+    reset = now & (((idx >= b.start) & (idx < b.stop)) | ((idx >= pos.start) & (idx < pos.stop)))
+    return (jnp.where(now, 0.0, fix_bias), jnp.where(now, P_new, P),
+            jnp.where(now, C_b, fix_cov), reset)
 
 
 def _gnss_rows(lf: LooseFilter, layout, rx, fix: GnssFix):
@@ -406,7 +412,9 @@ def _align_in_motion(lf: LooseFilter, layout, nav, P, fix: GnssFix, aligned):
     (eps_new = M eps_old; the body-frame roll/pitch errors, and hence their correlation with the
     accelerometer biases learnt while levelling, are unchanged). The antenna velocity is taken
     for the IMU's (the lever-arm rotation term is neglected: the vehicle is starting off, not
-    turning hard). Returns (nav, P, aligned, aligned_now).
+    turning hard). Returns (nav, P, aligned, aligned_now, Phi): ``Phi`` the error state's
+    transition through the alignment (the tilt rotation T, the rows of the restarted states
+    zero; the identity on epochs without it).
     """
     state, prev = nav.state, nav.prev
     speed_h = jnp.hypot(fix.vel_enu[0], fix.vel_enu[1])
@@ -441,7 +449,8 @@ def _align_in_motion(lf: LooseFilter, layout, nav, P, fix: GnssFix, aligned):
         w_h2 = (geodesy.OMEGA_E * jnp.cos(state.llh[0])) ** 2
         xy = jnp.arange(layout.sl(name).start, layout.sl(name).start + 2)
         P_new = P_new.at[xy, xy].add(w_h2)
-    return strapdown.InsNav(state, prev), jnp.where(do, P_new, P), aligned | do, do
+    Phi = jnp.where(do, smoother.reset_rows(T, flags), jnp.eye(layout.size))
+    return strapdown.InsNav(state, prev), jnp.where(do, P_new, P), aligned | do, do, Phi
 
 
 def _heading_index(layout: StateLayout) -> int:
@@ -472,8 +481,12 @@ def _forget_heading(lf: LooseFilter, layout, res: ekf.UpdateResult, aligned):
     return res._replace(x=jnp.where(aligned, res.x, x_f), P=jnp.where(aligned, res.P, P_f))
 
 
-def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
-    """One epoch: mechanize, propagate P, detect standstill, masked update, feed back."""
+def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput, record: bool = False):
+    """One epoch: mechanize, propagate P, detect standstill, masked update, feed back.
+
+    Returns (carry, EpochOutput), or with ``record`` (static) (carry, (EpochOutput,
+    smoother.Record)): the epoch's error transition, P-, P+, correction and nominal state for
+    the RTS smoother (``run_smoother``)."""
     cfg, system, layout = lf.cfg, lf.system, lf.layout
     n_sub = cfg.cov_substeps
     k = inp.samples.dv_b.shape[0]
@@ -483,12 +496,18 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
     dt_sub = lf.imu_dt_s * (k // n_sub)
 
     def substep(c, chunk):
-        nav, P = c
+        nav, P, Phi = c
         nav, mean = system.propagate(nav, carry.sensors, chunk, lf.imu_dt_s)
-        P = _propagate_covariance(lf, layout, nav, mean, carry.sensors, P, dt_sub)
-        return (nav, P), mean
+        P, Phi_sub = _propagate_covariance(lf, layout, nav, mean, carry.sensors, P, dt_sub)
+        return (nav, P, Phi_sub @ Phi if record else None), mean
 
-    (nav, P), means = jax.lax.scan(substep, (carry.nav, carry.P), chunks)
+    Phi0 = None
+    if record:  # a heading forgotten after the last update restarts here (smoother docstring)
+        Phi0 = jnp.eye(layout.size)
+        if cfg.align_in_motion:
+            forgot = (jnp.arange(layout.size) == _heading_index(layout)) & ~carry.aligned
+            Phi0 = smoother.reset_rows(Phi0, forgot)
+    (nav, P, Phi), means = jax.lax.scan(substep, (carry.nav, carry.P, Phi0), chunks)
     # x_hat <- Phi x_hat for the sensor estimates: Gauss-Markov shares decay (issue 16, defect 4)
     carry = carry._replace(sensors=system.predict_sensors(carry.sensors, dt_sub * n_sub))
     f_mean_b, w_mean_b = means.f_b.mean(0), means.w_ib_b.mean(0)  # epoch means (equal chunks)
@@ -513,7 +532,8 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
         zupt_on = zupt_on & ~inp.gnss.vel_valid
     aligned, gnss_ok = carry.aligned, jnp.ones(3, bool)
     if cfg.align_in_motion:
-        nav, P, aligned, now = _align_in_motion(lf, layout, nav, P, inp.gnss, aligned)
+        nav, P, aligned, now, Phi_align = _align_in_motion(lf, layout, nav, P, inp.gnss, aligned)
+        Phi = Phi_align @ Phi if record else None
         state = nav.state
         C = state.C_b_l
         # Before the alignment a moving INS runs in an arbitrary heading frame: horizontal GNSS
@@ -528,12 +548,14 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
     if layout.has("fix_bias"):
         # predicted fix = antenna + b_hat, so dz gains b_hat and H gains I on the b block (a
         # floor keeps R regular when the whole fix covariance is b's)
-        fix_bias, P, fix_cov = _propagate_fix_bias(lf, layout, P, carry, inp.gnss)
+        fix_bias, P, fix_cov, scale = _propagate_fix_bias(lf, layout, P, carry, inp.gnss)
+        Phi = scale[:, None] * Phi if record else None
         if cfg.align_in_motion:
             C_fix = cfg.pos_cov_scale * inp.gnss.cov_pos_enu
-            fix_bias, P, fix_cov = _align_fix_bias(
+            fix_bias, P, fix_cov, reset = _align_fix_bias(
                 layout, P, fix_bias, fix_cov, cfg.fix_bias_share * C_fix, C_fix, inp.gnss.llh, now
             )
+            Phi = smoother.reset_rows(Phi, reset) if record else None
         pos_rows = pos_rows._replace(
             dz=pos_rows.dz + fix_bias,
             H=pos_rows.H.at[:, layout.sl("fix_bias")].set(jnp.eye(3)),
@@ -580,6 +602,7 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
     res = ekf.masked_update(
         jnp.zeros(layout.size), P, rows.dz, rows.H, rows.R, rows.mask, cfg.gate_chi2
     )
+    res_update = res
     if cfg.align_in_motion:
         res = _forget_heading(lf, layout, res, aligned)
 
@@ -612,12 +635,48 @@ def epoch_step(lf: LooseFilter, carry: Carry, inp: EpochInput):
         sensors=sensors,
         odo_scale=odo_scale,
     )
-    return Carry(nav, sensors, res.P, odo_scale, ref_var, aligned, fix_bias, fix_cov), out
+    new = Carry(nav, sensors, res.P, odo_scale, ref_var, aligned, fix_bias, fix_cov)
+    if record:
+        rec = smoother.Record(Phi, P, res_update.P, res.x, nav, sensors,
+                              x_post=res_update.x - res.x)
+        return new, (out, rec)
+    return new, out
 
 
 def run(lf: LooseFilter, carry: Carry, inputs: EpochInput):
     """Scan ``epoch_step`` over stacked epochs; returns (final carry, stacked EpochOutput)."""
     return jax.lax.scan(lambda c, i: epoch_step(lf, c, i), carry, inputs)
+
+
+def run_smoother(lf: LooseFilter, carry: Carry, inputs: EpochInput):
+    """Forward filter and RTS smoother (``jaxnav.filter.smoother``) over stacked epochs.
+
+    Returns (forward EpochOutput, smoothed EpochOutput): the smoothed one has the forward
+    nominal of each epoch with the smoothed error dx^s fed back (position, velocity, attitude,
+    sensor estimates, odometer scale) and P_nav from P^s; its NIS, dof, applied rows and
+    detector outputs are the forward pass's (a smoother has no innovations of its own).
+    Memory: the forward pass keeps 3 n^2 + O(n) float64 per epoch (smoother module docstring).
+    """
+    _, (out, rec) = jax.lax.scan(lambda c, i: epoch_step(lf, c, i, record=True), carry, inputs)
+    return out, smoothed_outputs(lf, out, rec)
+
+
+def smoothed_outputs(lf: LooseFilter, out: EpochOutput, rec: smoother.Record) -> EpochOutput:
+    """The forward outputs with the RTS-smoothed states and covariances in place."""
+    layout = lf.layout
+    dx_s, P_s = smoother.error_state(rec)
+    n_nav = layout.sl("att").stop
+
+    def one(nav, sensors, dx):
+        nav_s, sensors_s = lf.system.feedback(nav, sensors, dx, layout)
+        return lf.system.llh(nav_s), lf.system.vel_enu(nav_s), lf.system.euler(nav_s), sensors_s
+
+    llh, vel, euler, sensors = jax.vmap(one)(rec.nav, rec.sensors, dx_s)
+    odo_scale = out.odo_scale
+    if layout.has("odo_scale"):
+        odo_scale = odo_scale - dx_s[:, layout.i("odo_scale")]
+    return out._replace(llh=llh, vel_enu=vel, euler=euler, P_nav=P_s[:, :n_nav, :n_nav],
+                        sensors=sensors, odo_scale=odo_scale)
 
 
 # ---- helpers for simulation studies -----------------------------------------------------------

@@ -18,7 +18,13 @@ Phi_{k+1} is the product of every linear map the forward epoch applied to P betw
 (covariance substeps, the loose filter's fix-bias scaling, the rotation of the tilt errors at
 an in-motion alignment) with the rows of re-initialised states set to zero (``reset_rows``):
 a state restarted without correlations (an ambiguity after a slip, a re-aligned heading) carries
-nothing back across its restart.
+nothing back across its restart. A state the filter "forgets" after its update (the loose
+filter's heading before the in-motion alignment: variance back to the prior, correlations
+cleared) is such a restart at the start of the next epoch: the record keeps the update's own
+posterior (P+ and the part of the correction not fed back, ``x_post``) and the next epoch's Phi
+has the forgotten rows zero. Recording the inflated P+ instead would break P^s <= P+ (a reset
+that clears correlations does not shrink P, so P+_{k+1} <= P-_{k+1} fails and the backward
+pass inflates the variances before it, measured x1e4 on the simulated car start).
 
 What the backward pass needs is stored by the forward pass (``Record``): per epoch Phi, P- and
 P+ (3 n^2 float64) plus dx_hat and the nominal state, i.e. 3 n^2 x 8 bytes + O(n): 10.6 kB for
@@ -45,6 +51,9 @@ class Record(NamedTuple):
     dx: Float[Array, " n"]  # the correction fed back at epoch k (0 without an update)
     nav: Any  # the system's navigation state after the feedback (the nominal x_hat_k+)
     sensors: Any  # the system's sensor-error estimates after the feedback
+    # posterior mean of the error of the nominal after the feedback: 0 when the whole update
+    # was fed back; what was held back otherwise (the loose filter's unknown heading)
+    x_post: Float[Array, " n"]
 
 
 def reset_rows(Phi: Float[Array, "n n"], reset: Bool[Array, " n"]) -> Float[Array, "n n"]:
@@ -92,5 +101,5 @@ def rts(
 
 def error_state(rec: Record) -> tuple[Float[Array, "T n"], Float[Array, "T n n"]]:
     """Smoothed error dx_k^s of each forward nominal x_hat_k+ and its covariance (module
-    docstring: x_k+ = 0, x_k- = -dx_hat_k)."""
-    return rts(jnp.zeros_like(rec.dx), rec.P_post, -rec.dx, rec.P_prior, rec.Phi)
+    docstring: x_k+ = 0, or ``x_post``, and x_k- = -dx_hat_k)."""
+    return rts(rec.x_post, rec.P_post, -rec.dx, rec.P_prior, rec.Phi)
