@@ -180,6 +180,58 @@ def test_outage_sigmas_are_true_on_the_car(tmp_path):
     assert 1 / 3 <= ze <= 3 and 1 / 3 <= zn <= 3
 
 
+def _grid_outage_errors(tmp_path, *extra):
+    """`jaxnav lc` on the whole drive with the 12 15-s grid outages from 300 s (never seen by
+    the tuned configuration's fit, docs/tuning.md): per outage the maximum 2D error of the
+    written .pos against the RTK file read independently, and (error / sigma)^2 per epoch."""
+    out = tmp_path / "drive.pos"
+    buf = io.StringIO()
+    with warnings.catch_warnings(), contextlib.redirect_stdout(buf):
+        warnings.simplefilter("ignore", UserWarning)
+        assert lc.main(["--imu", str(IMU), "--imu-tag", str(TAG), "--gnss", str(GNSS), "--config",
+                        str(CONFIG), "--outage-grid", "300:20:15", "--out", str(out),
+                        *extra]) == 0
+    sol, ref = read_pos(out), read_pos(GNSS)
+    idx = np.searchsorted(ref.time_gps_s, sol.time_gps_s - 1e-4)
+    err = _enu_error(sol.llh, ref.llh[idx])
+    starts = np.flatnonzero(np.diff(np.r_[False, sol.outage].astype(int)) == 1)
+    ends = np.flatnonzero(np.diff(np.r_[sol.outage, False].astype(int)) == -1) + 1
+    max2d = np.array([np.hypot(*err[a:b, :2].T).max() for a, b in zip(starts, ends, strict=True)])
+    z2 = lc.sigma_ratios(err, sol.sd_neu_m)[sol.outage]
+    return buf.getvalue(), max2d, z2
+
+
+@pytest.fixture(scope="module")
+def smoothed_grid(tmp_path_factory):
+    _need_data()
+    return _grid_outage_errors(tmp_path_factory.mktemp("smooth"), "--smooth")
+
+
+def test_smoothing_bridges_15_s_outages_on_the_car(smoothed_grid):
+    """Issue 21's bar: with the RTS smoother the mean maximum 2D error of the 12 grid outages
+    is <= 1 m (the forward filter: 5.45 m, docs/validation.md), and the report prints the
+    forward figure beside it."""
+    text, max2d, _ = smoothed_grid
+    print(text)
+    assert max2d.size == 12
+    assert max2d.mean() <= 1.0
+    fwd = float(re.search(r"\(forward filter ([0-9.]+) m\)", text).group(1))
+    assert fwd > 3.0 * max2d.mean()  # the forward filter, same run, bridges far worse
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "issues 16/21: the smoothed outage sigmas are over-confident on this car, mean "
+    "(error / sigma)^2 E 10.1, N 11.7 (docs/validation.md): the smoother removes the errors its "
+    "model explains (bias-like drift), the ~0.5 m arch left in mid-outage is not in the model"))
+def test_smoothed_outage_sigmas_are_true_on_the_car(smoothed_grid):
+    """The smoothed sigmas written to the .pos are true during the outages: mean
+    (error / sigma)^2 per horizontal axis in [1/3, 3]."""
+    _, _, z2 = smoothed_grid
+    ze, zn = np.mean(z2[:, 0]), np.mean(z2[:, 1])
+    print(f"smoothed, mean (error / sigma)^2 in the outages: E {ze:.2f}, N {zn:.2f}")
+    assert 1 / 3 <= ze <= 3 and 1 / 3 <= zn <= 3
+
+
 def test_sweep_engine_equals_one_run_per_outage(tmp_path, goldens):
     """The checkpoint-forking sweep (study.sweep) on the real drive gives each outage's metrics
     of a full filter run with only that outage withheld (the brute-force definition)."""
