@@ -210,3 +210,66 @@ def test_band_is_the_exact_chi_square_quantile_pair():
         half = 1.959964 * np.sqrt(2 * 3 / n_runs)  # the normal approximation of the band
         assert lo < 3.0 < hi
         assert (hi - lo) / 2 == pytest.approx(half, rel=0.02)
+
+
+# ---- RTS smoothing (issue 21) in the same matched world ---------------------------------------
+OUTAGE = (150, 180)  # epochs withheld (every satellite) in the smoothing check: 30 s
+
+
+def _smoothed_runs(mode: str, n_runs: int):
+    """Per run: forward (``tight.run``) and ``tight.run_smoother`` outputs' NEES, with every
+    satellite withheld over ``OUTAGE`` (the ambiguities restart after it), plus 2D errors."""
+    factory = _factory()
+    tf = _matched_filter(factory, mode)
+    nav_true = scenario.initial_ins_state(factory.geo)
+    t = factory.geo.truth_ep
+    truth = mt.track(t.llh[1:], t.vel_enu[1:], t.euler[1:])
+
+    def one(obs0, inputs, k_init):
+        carry0 = _perturbed_carry(tf, nav_true, obs0, k_init)
+        epoch = jnp.arange(inputs.keep.shape[0])[:, None]
+        out_ = (epoch >= OUTAGE[0]) & (epoch < OUTAGE[1])
+        inputs = inputs._replace(keep=inputs.keep & ~out_)
+        _, ref = tight.run(tf, carry0, inputs)
+        fwd, smo = tight.run_smoother(tf, carry0, inputs)
+        res = {}
+        for name, o in (("ref", ref), ("forward", fwd), ("smoothed", smo)):
+            est = mt.track(o.llh, o.vel_enu, o.euler)
+            q_pos, _ = mt.nees(est, truth, o.P_nav)
+            e = mt.enu_errors(o.llh, truth.llh)
+            res[name] = (q_pos, jnp.hypot(e[:, 0], e[:, 1]), o.P_nav)
+        return res
+
+    (obs0, inputs), k = _realizations(mode == "sf_code", n_runs)[0]
+    return jax.device_get(jax.jit(jax.vmap(one))(obs0, inputs, k[:n_runs]))
+
+
+@pytest.mark.slow
+def test_smoother_in_the_matched_world():
+    """Float PPP / INS15, 50 runs, all satellites withheld for 30 s: the forward pass of
+    ``run_smoother`` is ``tight.run``; the smoothed position ANEES lies in its 95 % band (over
+    the converged epochs outside the outage, and at mid-outage); smoothed variances never
+    exceed the forward ones; the outage's mean maximum 2D error drops well below the forward."""
+    n = N_RUNS_CI
+    r = _smoothed_runs("float_ppp", n)
+    q_ref, _, P_ref = r["ref"]
+    q_fwd, e_fwd, P_fwd = r["forward"]
+    q_smo, e_smo, P_smo = r["smoothed"]
+    np.testing.assert_allclose(q_fwd, q_ref, rtol=1e-8)
+    var_f = np.diagonal(P_fwd, axis1=-2, axis2=-1)
+    var_s = np.diagonal(P_smo, axis1=-2, axis2=-1)
+    assert np.all(var_s <= var_f * (1.0 + 1e-9))
+    lo, hi = _band(3, n)
+    epochs = np.arange(q_smo.shape[1])
+    outside = (epochs >= 60) & ((epochs < OUTAGE[0]) | (epochs >= OUTAGE[1] + 30))
+    anees = q_smo.mean(axis=0)[outside].mean()
+    mid = q_smo[:, (OUTAGE[0] + OUTAGE[1]) // 2].mean()
+    lo_mid, hi_mid = chi2.ppf([0.005, 0.995], 3 * n) / n
+    w = slice(*OUTAGE)
+    m_fwd, m_smo = e_fwd[:, w].max(axis=1).mean(), e_smo[:, w].max(axis=1).mean()
+    print(f"\nsmoothed float_ppp/ins15, {n} runs: ANEES position {anees:.2f} (band {lo:.2f}-"
+          f"{hi:.2f}), at mid-outage {mid:.2f} (99 % band {lo_mid:.2f}-{hi_mid:.2f}); 30-s "
+          f"outage mean max 2D: forward {m_fwd:.3f} m, smoothed {m_smo:.3f} m")
+    assert lo <= anees <= hi
+    assert lo_mid <= mid <= hi_mid
+    assert m_smo < 0.5 * m_fwd

@@ -16,6 +16,10 @@ slips come from the receiver's loss-of-lock indicators only, as the geometry-fre
 Melbourne-Wuebbena tests need two frequencies). Single frequency levels the GPS/GLONASS C/A
 code to P1 with the satellites' P1-C1 biases (the clocks refer to P1/P2): one of ``--dcb``
 (CODE file), ``--p1c1-from-obs`` (the file's own C1W - C1C) or ``--no-p1c1`` is required.
+``--smooth`` (= ``--solution combined``) writes the forward filter followed by the RTS smoother
+(``tight.run_smoother``): every epoch estimated from the whole session, as RTKPOST's "combined"
+solution; the summary is the smoothed solution's, with the forward one's final error and RMS
+beside it. A "backward" solution (the filter run in reverse time) is not offered.
 ``--mode static`` keeps the position a random
 constant, ``--mode kinematic`` makes it a random walk of 100 m/sqrt(s) (S002 §5.2.3). Without
 ``--sp3`` the broadcast orbits and clocks are used.
@@ -63,6 +67,10 @@ CLOCK_PSD_M2_S = ppp.RECORDED_CLOCK_PSD_M2_S
 REAL_CODE_SIGMA_M = ppp.RECORDED_CODE_SIGMA_M
 #: Initial position 1-sigma [m] around the single-point solution (chosen: SPP is metre-level).
 INIT_POS_SIGMA_M = 30.0
+
+
+#: ``--solution`` values: no "backward" (module docstring).
+SOLUTIONS = ("forward", "combined")
 
 
 def _parse_systems(text: str) -> tuple[str, ...]:
@@ -126,6 +134,12 @@ def build_parser() -> argparse.ArgumentParser:
     p1c1.add_argument("--no-p1c1", action="store_true",
                       help="use the C/A code as P1 (accepts up to ~1 m of satellite bias)")
     p.add_argument("--out", required=True, help="output RTKLIB .pos file")
+    sol = p.add_mutually_exclusive_group()
+    sol.add_argument("--solution", choices=SOLUTIONS, default="forward",
+                     help="forward filter, or combined = forward filter + RTS smoother (every "
+                          "epoch from all the data, as RTKPOST's combined); default forward")
+    sol.add_argument("--smooth", dest="solution", action="store_const", const="combined",
+                     help="same as --solution combined")
     return p
 
 
@@ -197,6 +211,24 @@ def run_ppp(
     the static median of ``prep.approx_pos_ecef``, which would lend the start information from
     the whole session).
     """
+    return _run_filter(*_filter_start(prep, cfg, system, epoch_dt_s, nav0, init_sigma_m))
+
+
+def run_ppp_smoothed(
+    prep: prep_mod.PreparedGnss,
+    cfg: ppp.PppConfig,
+    system: ppp_only.GnssOnlySystem,
+    epoch_dt_s: float,
+    nav0: ppp_only.GnssNav | None = None,
+    init_sigma_m=INIT_POS_SIGMA_M,
+):
+    """``run_ppp``'s filter followed by the RTS smoother (``tight.run_smoother``): returns
+    (forward outputs, smoothed outputs), RTKPOST's "forward" and "combined" solutions."""
+    return _run_smoother(*_filter_start(prep, cfg, system, epoch_dt_s, nav0, init_sigma_m))
+
+
+def _filter_start(prep, cfg, system, epoch_dt_s, nav0, init_sigma_m):
+    """(filter, initial carry, stacked inputs) of ``run_ppp``."""
     tf = tight.TightFilter(
         system=system, cfg=cfg, slots=prep.slots, imu_dt_s=epoch_dt_s, epoch_dt_s=epoch_dt_s
     )
@@ -212,13 +244,18 @@ def run_ppp(
         start = prep.spp_pos_ecef[ok[0]] if ok.size else prep.approx_pos_ecef[0]
         nav0 = ppp_only.initial_nav(start)
     carry = tight.initial_carry(tf, nav0, obs0, NavSigmas(pos_m=init_sigma_m, vel_m_s=10.0))
-    return _run_filter(tf, carry, inputs)
+    return tf, carry, inputs
 
 
 @eqx.filter_jit
 def _run_filter(tf, carry, inputs):
     """Compiled once per (configuration, shapes): arrays are traced, settings static."""
     return tight.run(tf, carry, inputs)
+
+
+@eqx.filter_jit
+def _run_smoother(tf, carry, inputs):
+    return tight.run_smoother(tf, carry, inputs)
 
 
 def _pos_solution(prep, out, q):
@@ -344,7 +381,11 @@ def _main(args, argv, t_start) -> int:
     ).for_recorded_data()
     model = "static" if args.mode == "static" else "random_walk"
     system = ppp_only.GnssOnlySystem(model=model)
-    _, out = run_ppp(prep, cfg, system, float(obs.interval_s))
+    smooth = args.solution == "combined"
+    if smooth:
+        out_fwd, out = run_ppp_smoothed(prep, cfg, system, float(obs.interval_s))
+    else:
+        _, out = run_ppp(prep, cfg, system, float(obs.interval_s))
     jax.block_until_ready(out.llh)
     t_run = time.time()
 
@@ -356,7 +397,8 @@ def _main(args, argv, t_start) -> int:
         args.out,
         sol,
         comments=(
-            f"mode      : {args.mode} {args.freq}-frequency {mode} ({','.join(args.systems)})",
+            f"mode      : {args.mode} {args.freq}-frequency {mode} ({','.join(args.systems)}); "
+            f"solution {'combined (forward + RTS smoother)' if smooth else 'forward'}",
             f"command   : {cmd}",
         ),
     )
@@ -426,6 +468,13 @@ def _main(args, argv, t_start) -> int:
         f"  RMS after {args.rms_after / 60:.0f} min ({st['n_rms']} epochs): E {r[0]:.4f} "
         f"N {r[1]:.4f} U {r[2]:.4f} m, horizontal {st['rms_h']:.4f} m, 3D {st['rms_3d']:.4f} m"
     )
+    if smooth:  # the forward filter of the same run, against the same reference
+        sf = summary_stats(prep.time_gps_s, np.asarray(out_fwd.llh), ref, args.rms_after, used)
+        ff, rf = sf["enu"][k_last], sf["rms_enu"]
+        print(f"  forward filter: final - ref (E, N, U) {ff[0]:+.4f} {ff[1]:+.4f} {ff[2]:+.4f} m; "
+              f"RMS after {args.rms_after / 60:.0f} min E {rf[0]:.4f} N {rf[1]:.4f} U "
+              f"{rf[2]:.4f} m, horizontal {sf['rms_h']:.4f} m; < 10 cm from "
+              f"{_fmt_time(sf['conv10_s'])}")
     spp_ok = prep.spp_ok
     if spp_ok.any():
         e_spp = np.asarray(

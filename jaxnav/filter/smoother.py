@@ -27,10 +27,11 @@ that clears correlations does not shrink P, so P+_{k+1} <= P-_{k+1} fails and th
 pass inflates the variances before it, measured x1e4 on the simulated car start).
 
 What the backward pass needs is stored by the forward pass (``Record``): per epoch Phi, P- and
-P+ (3 n^2 float64) plus dx_hat and the nominal state, i.e. 3 n^2 x 8 bytes + O(n): 10.6 kB for
-the 21 states of INS21 (23 MB for the 2182 epochs of the car drive, 9.5 MB for a 900-epoch
-scenario), stored rather than recomputed because even a 1000-scenario chunk fits in memory
-(``jaxnav.study`` sweeps run in chunks); the backward pass is one ``lax.scan``, vmappable.
+P+ (3 n^2 float64) plus dx_hat and the nominal state, i.e. 3 n^2 x 8 bytes + O(n): 17.5 kB
+for the 27 states of the car's INS27 (38 MB for its 2182 epochs), 27.7 kB for INS15 + float PPP
+(n = 34; 25 MB for a 900-epoch scenario). Stored rather than recomputed: a sweep chunk of 64
+such scenarios holds 1.6 GB, within the 24 GB of the CI machine, and recomputation would double
+the forward cost; the backward pass is one ``lax.scan``, vmappable.
 """
 
 from __future__ import annotations
