@@ -1,6 +1,6 @@
 """``jaxnav ins``: GNSS/INS on a recorded IMU log, loosely or tightly coupled, with outages.
 
-    jaxnav ins --config RUN.toml --out OUT.pos [--outages SCHEDULE] [--overwrite]
+    jaxnav ins --config RUN.toml --out OUT.pos [--outages SCHEDULE] [--smooth] [--overwrite]
 
 The configuration (``configs/walk_gnss_imu.toml`` documents every key) is the car
 configuration of ``jaxnav lc`` (``[imu]``, ``[imu_errors]``, ``[lever_arms]``, ``[gnss]``,
@@ -19,8 +19,11 @@ configuration of ``jaxnav lc`` (``[imu]``, ``[imu_errors]``, ``[lever_arms]``, `
 
 The tight run writes the solution without outages to OUT.pos (at the antenna) and, beside it,
 OUT.outages.csv: per outage and coupling the maximum and final 2D error against the reference.
-Existing outputs are replaced only with ``--overwrite``. Every input error exits with code 2 and
-one line naming the file, section and key.
+``--smooth``: the forward filter followed by the RTS smoother (``jaxnav.filter.smoother``); the
+.pos holds the smoothed solution and the outage table the smoothed errors beside the forward
+ones (``tight_fwd``; for the loose kind, ``jaxnav lc --smooth``). The loose cascade run for
+comparison stays a forward filter. Existing outputs are replaced only with ``--overwrite``.
+Every input error exits with code 2 and one line naming the file, section and key.
 """
 
 from __future__ import annotations
@@ -150,6 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output .pos (INS at the antenna)")
     p.add_argument("--outages", help="schedule id,start_s,length_s[,satellites_kept] "
                    "(start after the first IMU sample); default: the [outages] grid")
+    p.add_argument("--smooth", action="store_true",
+                   help="forward filter + RTS smoother (RTKPOST's combined solution)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     return p
 
@@ -184,7 +189,8 @@ def _loose(cfg: InsConfig, args, sched) -> int:
     lc_args = argparse.Namespace(
         imu=cfg.paths["imu"], imu_tag=cfg.paths.get("imu_tag"), gnss=cfg.paths["gnss_pos"],
         config=str(cfg.path), outages=None, outage_grid=None, duration=None, out=args.out,
-        sweep=None, overwrite=args.overwrite, quiet=True)
+        sweep=None, overwrite=args.overwrite, quiet=True,
+        solution="combined" if args.smooth else "forward")
     return lc.run(lc_args, cfg.car, sched)
 
 
@@ -197,9 +203,14 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
     keeps = tc.keep_masks(rec, plan)
     t_read = time.perf_counter()
     tf, carry, inputs = tc.build_tight(cfg.car, opts, rec)
-    out = tc.run_tight(tf, carry, inputs, keeps)
+    if args.smooth:
+        fwd, out = tc.run_tight_smoothed(tf, carry, inputs, keeps)
+    else:
+        out = tc.run_tight(tf, carry, inputs, keeps)
     ant = np.asarray(antenna_track(tf.system.lever_b, out))
     runs = {"tight": (ant, out.n_sat)}
+    if args.smooth:
+        runs["tight_fwd"] = (np.asarray(antenna_track(tf.system.lever_b, fwd)), fwd.n_sat)
     if opts.compare_loose:
         cf, c_carry, c_inputs = tc.build_loose(cfg.car, opts, rec)
         lo = tc.run_loose(cf, c_carry, c_inputs, keeps)
@@ -212,7 +223,8 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
                           np.zeros(rec.time_gps_s.size, bool))
     pos_io.write_pos(out_path, sol, comments=(
         f"jaxnav ins: tightly coupled {opts.mode} / {cfg.car.imu_errors_states} at the antenna; "
-        f"config {cfg.path.name}",
+        f"config {cfg.path.name}; solution "
+        f"{'combined (forward + RTS smoother)' if args.smooth else 'forward'}",
         f"first IMU sample {rec.t_imu0_gps_s:.3f} GPS s (origin of outage start times)"),
         program=f"jaxnav {jaxnav.__version__}")
 

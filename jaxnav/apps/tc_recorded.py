@@ -355,6 +355,12 @@ def run_tight(tf, carry, inputs, keeps):
 
 
 @eqx.filter_jit
+def run_tight_smoothed(tf, carry, inputs, keeps):
+    """``run_tight`` with the RTS smoother: (forward, smoothed) outputs, each [keeps, T]."""
+    return jax.vmap(lambda k: tight.run_smoother(tf, carry, inputs._replace(keep=k)))(keeps)
+
+
+@eqx.filter_jit
 def run_loose(cf, carry, inputs, keeps):
     """The cascade (PPP -> LC) over every keep mask (one vmap)."""
 
