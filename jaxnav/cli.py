@@ -59,7 +59,10 @@ def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool, force: bo
         if client is not None:
             client.close()
     paths = report.write_report(result.dataset, out, overwrite=True)
-    print(report.markdown_by_satellites(report.table_by_satellites(result.dataset)))
+    for solution, view in report.solution_views(result.dataset):
+        if solution is not None:
+            print(f"\n## {solution}\n")
+        print(report.markdown_by_satellites(report.table_by_satellites(view)))
     stats = result.stats
     print(
         f"\n{stats['scenarios']} scenarios in {stats['wall_s']:.1f} s "

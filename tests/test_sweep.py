@@ -86,41 +86,63 @@ def en_to_llh(e, n):
     return jnp.stack([lat, lon, jnp.full_like(lat, LLH0[2])], axis=-1)
 
 
-def toy_run(tf: ToyFilter, carry: ToyCarry, inputs: ToyInput):
-    dt = tf.dt
+def _toy_transition(dt, q):
     Phi = jnp.eye(4).at[0, 2].set(dt).at[1, 3].set(dt)
-    Q = tf.q * jnp.array(
+    Q = q * jnp.array(
         [[dt**3 / 3, 0, dt**2 / 2, 0], [0, dt**3 / 3, 0, dt**2 / 2],
          [dt**2 / 2, 0, dt, 0], [0, dt**2 / 2, 0, dt]]
     )
+    return Phi, Q
+
+
+def _toy_output(x, P):
     scale = jnp.array([1 / _MPR[0], 1 / _MPR[1], 1.0, 1.0, 1.0, 1.0])  # (n, e) m -> (lat, lon)
+    # P_nav in the tight filter's units: (d_lat, d_lon, d_h) rad/rad/m, vel ENU
+    idx = jnp.array([1, 0, 0, 2, 3, 0])  # n, e, (h), ve, vn, (vu)
+    P6 = P[idx[:, None], idx[None, :]]
+    unit = jnp.array([1.0, 1.0, 0.0, 1.0, 1.0, 0.0])
+    P6 = P6 * unit[:, None] * unit[None, :] + jnp.diag(1.0 - unit)
+    P6 = P6 * scale[:, None] * scale[None, :]
+    return ToyOutput(
+        llh=en_to_llh(x[0], x[1]),
+        vel_enu=jnp.array([x[2], x[3], 0.0]),
+        euler=jnp.array([0.0, 0.0, jnp.arctan2(x[2], x[3])]),
+        P_nav=P6,
+    )
+
+
+def _toy_scan(tf: ToyFilter, carry: ToyCarry, inputs: ToyInput):
+    """The stand-in's KF; per epoch (prior mean, prior P, posterior mean, posterior P)."""
+    Phi, Q = _toy_transition(tf.dt, tf.q)
 
     def step(c, inp):
-        x, P = ekf.predict(c.x, c.P, Phi, Q)
-        d = x[:2] - tf.beacons_en
+        x_pr, P_pr = ekf.predict(c.x, c.P, Phi, Q)
+        d = x_pr[:2] - tf.beacons_en
         r = jnp.linalg.norm(d, axis=1)
         H = jnp.zeros((N_BEACON, 4)).at[:, :2].set(d / r[:, None])
         res = ekf.masked_update(
-            jnp.zeros(4), P, inp.range_m - r, H, tf.sigma**2 * jnp.eye(N_BEACON),
+            jnp.zeros(4), P_pr, inp.range_m - r, H, tf.sigma**2 * jnp.eye(N_BEACON),
             inp.available & inp.keep,
         )
-        x = x + res.x
-        P = res.P
-        # P_nav in the tight filter's units: (d_lat, d_lon, d_h) rad/rad/m, vel ENU
-        idx = jnp.array([1, 0, 0, 2, 3, 0])  # n, e, (h), ve, vn, (vu)
-        P6 = P[idx[:, None], idx[None, :]]
-        unit = jnp.array([1.0, 1.0, 0.0, 1.0, 1.0, 0.0])
-        P6 = P6 * unit[:, None] * unit[None, :] + jnp.diag(1.0 - unit)
-        P6 = P6 * scale[:, None] * scale[None, :]
-        out = ToyOutput(
-            llh=en_to_llh(x[0], x[1]),
-            vel_enu=jnp.array([x[2], x[3], 0.0]),
-            euler=jnp.array([0.0, 0.0, jnp.arctan2(x[2], x[3])]),
-            P_nav=P6,
-        )
-        return ToyCarry(x, P), out
+        x = x_pr + res.x
+        return ToyCarry(x, res.P), (x_pr, P_pr, x, res.P)
 
     return jax.lax.scan(step, carry, inputs)
+
+
+def toy_run(tf: ToyFilter, carry: ToyCarry, inputs: ToyInput):
+    carry, (_, _, x, P) = _toy_scan(tf, carry, inputs)
+    return carry, jax.vmap(_toy_output)(x, P)
+
+
+def toy_smooth(tf: ToyFilter, carry: ToyCarry, inputs: ToyInput):
+    """(forward, RTS-smoothed) outputs of the stand-in (jaxnav.filter.smoother.rts)."""
+    from jaxnav.filter import smoother
+
+    _, (x_pr, P_pr, x, P) = _toy_scan(tf, carry, inputs)
+    Phi, _ = _toy_transition(tf.dt, tf.q)
+    xs, Ps = smoother.rts(x, P, x_pr, P_pr, jnp.broadcast_to(Phi, P.shape))
+    return jax.vmap(_toy_output)(x, P), jax.vmap(_toy_output)(xs, Ps)
 
 
 TOY_OPS = sw.FilterOps(
@@ -128,6 +150,7 @@ TOY_OPS = sw.FilterOps(
     readout=lambda o: (mt.track(o.llh, o.vel_enu, o.euler), o.P_nav),
     get_keep=lambda i: i.keep,
     with_keep=lambda i, k: i._replace(keep=k),
+    smooth=toy_smooth,
 )
 
 
@@ -780,3 +803,62 @@ def test_damaged_store_is_explained_before_any_work(tmp_path):
     (mixed / sw.MANIFEST_FILE).write_text("{")
     with pytest.raises(sw.StoreError, match="damaged.*do not all carry this study's hash"):
         sw.run_sweep(cfg, factory, mixed, resume=True, progress=False)
+
+
+# ----------------------------------------------------------------------------------------------
+# smooth = true (issue 21)
+# ----------------------------------------------------------------------------------------------
+def test_smoothed_sweep_adds_a_solution_axis(tmp_path):
+    """``smooth = true``: every metric gets a ``solution`` axis. Its forward slice is the study
+    without smoothing, bit for bit; the smoothed solution equals the forward one at the last
+    epoch of each window the drive does not cut (the RTS end condition: the smoother sees
+    nothing after the window) and bridges complete outages far better; the report writes both
+    solutions' tables and plots."""
+    from jaxnav.study import report as rp
+
+    factory = ToyFactory()
+    kw = dict(modes=["toy_a"], realizations=1, satellites_kept=[0, "all"])
+    plain = sw.run_sweep(toy_config(**kw), factory, tmp_path / "plain", progress=False).dataset
+    ds = sw.run_sweep(toy_config(smooth=True, **kw), factory, tmp_path / "smooth",
+                      progress=False).dataset
+    assert list(ds.solution.values) == ["forward", "smoothed"]
+    assert ds.max_2d_m.dims == sw.DIMS + ("solution",)
+    assert ds.end_enu_m.dims == sw.DIMS + ("solution", "enu")
+    for k in sw.METRIC_FIELDS:
+        np.testing.assert_array_equal(ds[k].sel(solution="forward").values, plain[k].values)
+    np.testing.assert_array_equal(ds.trace_err_enu_m.sel(solution="forward").values,
+                                  plain.trace_err_enu_m.values)
+    # traces: the longest duration first; its windows are whole unless cut by the drive's end
+    tr, whole = ds.trace_err_enu_m, 0
+    for t in range(ds.sizes["trace"]):
+        fwd, smo = tr.values[t, 0], tr.values[t, 1]
+        last = np.flatnonzero(np.isfinite(fwd[:, 0]))[-1]
+        if last == fwd.shape[0] - 1:
+            whole += 1
+            np.testing.assert_allclose(smo[last], fwd[last], rtol=0, atol=1e-9)
+            assert np.nanmax(np.abs(smo[:last] - fwd[:last])) > 1e-3  # smoothed before it
+    assert whole > 0
+    out = ds.max_2d_m.sel(satellites_kept=0)
+    f, s = out.sel(solution="forward").values, out.sel(solution="smoothed").values
+    print(f"complete outages, mean max 2D: forward {f.mean():.2f} m, smoothed {s.mean():.2f} m")
+    assert s.mean() < 0.5 * f.mean()
+    paths = rp.write_report(ds, tmp_path / "report")
+    text = paths["markdown"].read_text()
+    assert "## Forward filter" in text and "## Smoothed (forward + RTS smoother)" in text
+    csv_text = paths["by_satellites_csv"].read_text()
+    assert csv_text.startswith("solution,") and "\nsmoothed,cv," in csv_text
+    for key in ("error_growth", "error_growth_smoothed", "by_satellites_smoothed"):
+        assert paths[key].stat().st_size > 10_000, key
+
+
+def test_smooth_needs_a_filter_with_a_smoother(tmp_path):
+    """A group whose FilterOps has no smoother (the PPP -> LC cascade) is refused before any
+    work, naming the key."""
+
+    class NoSmoother(ToyFactory):
+        ops = TOY_OPS._replace(smooth=None)
+
+    with pytest.raises(sc.ConfigError, match="study.smooth = true.*'toy_a' / 'cv'"):
+        sw.run_sweep(toy_config(smooth=True, modes=["toy_a"], realizations=1), NoSmoother(),
+                     tmp_path / "x", progress=False)
+    assert not (tmp_path / "x").exists()

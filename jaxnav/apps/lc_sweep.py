@@ -52,6 +52,7 @@ def lc_ops(lever_b: tuple[float, float, float]):
     return FilterOps(
         run=loose.run, readout=readout,
         get_keep=lambda inp: inp.gnss.pos_valid[..., None], with_keep=with_keep,
+        smooth=loose.run_smoother,
     )
 
 

@@ -18,6 +18,7 @@ and the engine's chunk size. Example::
     chunk_size = 64                    # scenarios per engine chunk (bounds memory)
     max_traces = 16                    # per (mode, system): per-epoch error kept for plots
     metric_window = "core"             # "core" or "with_ramp"
+    smooth = false                     # also RTS-smoothed metrics (a "solution" dimension)
 
     [placement]
     kind = "grid"                      # grid | random | events | schedule
@@ -112,6 +113,9 @@ class StudyConfig:
     chunk_size: int = 64
     max_traces: int = 16  # chosen: enough curves for one error-growth figure per mode
     metric_window: str = "core"
+    # Also the RTS-smoothed solution's metrics, beside the forward filter's (a ``solution``
+    # dimension of the Dataset: "forward", "smoothed"); jaxnav.study.sweep docstring.
+    smooth: bool = False
     placement: PlacementConfig = field(default_factory=PlacementConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     scenario: tuple[tuple[str, Any], ...] = ()  # free-form [scenario] table, sorted items
@@ -231,6 +235,7 @@ def _study_schema(modes, systems) -> dict[str, schema.Rule]:
                                   "measured"),
         "max_traces": schema.whole(0),
         "metric_window": schema.choice(METRIC_WINDOWS),
+        "smooth": schema.boolean(),
     }
 
 

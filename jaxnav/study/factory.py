@@ -196,9 +196,16 @@ class SimFactory:
         full run's outputs and checkpoints); chunk =
         chunk_size x window epochs x the per-epoch cost of a scenario window. The figures are
         peak-RSS slopes measured on this simulator (benchmarks/RESULTS.md, "Memory model").
+        With ``smooth`` each window epoch also holds the smoother's record, 3 n^2 float64 for
+        the study's largest filter (n error states; computed, jaxnav.filter.smoother).
         """
         drive = rows * self.cfg.duration_s * _DRIVE_BYTES_PER_S
-        chunk = chunk_epochs * _WINDOW_EPOCH_BYTES
+        per_epoch = _WINDOW_EPOCH_BYTES
+        if getattr(study_cfg, "smooth", False):
+            n = max(self.filter(m, s).layout.size for m in study_cfg.modes
+                    for s in study_cfg.systems if s not in LC_SYSTEMS)
+            per_epoch += 3 * 8 * n * n
+        chunk = chunk_epochs * per_epoch
         return {"drive": drive, "chunk": chunk, "total": _MEMORY_FIXED_BYTES + drive + chunk}
 
     @property

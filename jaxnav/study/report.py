@@ -12,6 +12,10 @@ Each cell pools every other axis (realizations, placements, policies, ramps) and
 (the seeds' "average maximum") with the spread: median and 90th percentile, NaN ignored. The
 CSV files hold the long form (n, mean, median, p90, max per cell).
 
+A study with ``smooth = true`` has a ``solution`` axis (forward, smoothed): the tables are given
+for each (``table.md`` one section per solution, the CSV files a ``solution`` column) and the
+plots too (the smoothed ones with the suffix ``_smoothed``).
+
 Plots (PNG, matplotlib's Agg canvas, no display needed): the per-epoch 2D error of the kept
 example scenarios around their outage, shaded (ramps lighter); and box plots of the maximum 2D
 error by satellites kept and by duration, one box per mode.
@@ -49,6 +53,8 @@ def kept_label(k) -> str:
 def _frame(ds: xr.Dataset, var: str) -> pd.DataFrame:
     """Long form: one row per scenario, the dimension values plus length_s."""
     da = ds[var]
+    if "solution" in da.dims:  # pooling forward and smoothed would mix two estimators
+        raise ValueError(f"{var!r} has a 'solution' axis; take one solution_views(ds) entry")
     if "enu" in da.dims:
         raise ValueError(f"{var!r} has an 'enu' axis; pick one component or a scalar metric")
     df = da.to_dataframe(name=var).reset_index()
@@ -175,6 +181,16 @@ def markdown_by_duration(df: pd.DataFrame, var: str = "max_2d_m") -> str:
     return "\n".join(out)
 
 
+def solution_views(ds: xr.Dataset) -> list[tuple[str | None, xr.Dataset]]:
+    """[(solution, Dataset of that solution)], or [(None, ds)] for a study without smoothing."""
+    if "solution" not in ds.dims:
+        return [(None, ds)]
+    return [(str(s), ds.sel(solution=s)) for s in ds["solution"].values]
+
+
+_SOLUTION_TITLES = {"forward": "Forward filter", "smoothed": "Smoothed (forward + RTS smoother)"}
+
+
 def _check_write(path: Path, overwrite: bool):
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
@@ -196,17 +212,23 @@ def write_tables(
     }
     for p in paths.values():
         _check_write(p, overwrite)
-    by_sat = table_by_satellites(ds, var)
-    by_dur = table_by_duration(ds, var)
     title = ds.attrs.get("title", "jaxnav outage sweep")
-    text = "\n".join([
-        f"# {title}", "",
-        f"jaxnav {ds.attrs.get('jaxnav_version', '?')}, config hash "
-        f"{str(ds.attrs.get('config_hash', '?'))[:12]}", "",
-        markdown_by_satellites(by_sat, var), markdown_by_duration(by_dur, var),
-    ])
-    paths["markdown"].write_text(text)
-    for key, df in (("by_satellites_csv", by_sat), ("by_duration_csv", by_dur)):
+    lines = [f"# {title}", "", f"jaxnav {ds.attrs.get('jaxnav_version', '?')}, config hash "
+             f"{str(ds.attrs.get('config_hash', '?'))[:12]}", ""]
+    long = {"by_satellites_csv": [], "by_duration_csv": []}
+    for solution, view in solution_views(ds):
+        by_sat = table_by_satellites(view, var)
+        by_dur = table_by_duration(view, var)
+        if solution is not None:
+            lines += [f"## {_SOLUTION_TITLES.get(solution, solution)}", ""]
+            by_sat.insert(0, "solution", solution)
+            by_dur.insert(0, "solution", solution)
+        lines += [markdown_by_satellites(by_sat, var), markdown_by_duration(by_dur, var)]
+        long["by_satellites_csv"].append(by_sat)
+        long["by_duration_csv"].append(by_dur)
+    paths["markdown"].write_text("\n".join(lines))
+    for key, parts in long.items():
+        df = pd.concat(parts, ignore_index=True)
         df = df.assign(satellites_kept=[
             "pooled" if k == ALL - 1 else kept_label(k) for k in df["satellites_kept"]
         ])
@@ -287,10 +309,11 @@ def _boxes(ax, groups: list, modes: list, data: dict, labels: list[str]):
 
 
 def plot_distributions(
-    ds: xr.Dataset, out_dir: str | os.PathLike, var: str = "max_2d_m"
+    ds: xr.Dataset, out_dir: str | os.PathLike, var: str = "max_2d_m", suffix: str = ""
 ) -> dict[str, Path]:
     """Box plots (whiskers 10th-90th percentile) of ``var`` by satellites kept and by duration
-    (complete outages, as the seed-004 table), one box per mode, one panel per system."""
+    (complete outages, as the seed-004 table), one box per mode, one panel per system; files
+    ``dist_by_satellites{suffix}.png`` and ``dist_by_duration{suffix}.png``."""
     out_dir = Path(out_dir)
     df = _frame(ds, var)
     modes = ds["mode"].values.tolist()
@@ -311,7 +334,7 @@ def plot_distributions(
         ax.set_title(system)
         ax.grid(True, axis="y", which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
-    paths["by_satellites"] = out_dir / "dist_by_satellites.png"
+    paths["by_satellites"] = out_dir / f"dist_by_satellites{suffix}.png"
     fig.savefig(paths["by_satellites"], dpi=110)
 
     outage_levels = sorted(k for k in kept if k != ALL)
@@ -329,7 +352,7 @@ def plot_distributions(
         ax.set_title(system)
         ax.grid(True, axis="y", which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
-    paths["by_duration"] = out_dir / "dist_by_duration.png"
+    paths["by_duration"] = out_dir / f"dist_by_duration{suffix}.png"
     fig.savefig(paths["by_duration"], dpi=110)
     return paths
 
@@ -340,10 +363,16 @@ def write_report(
     """Tables (write_tables) and plots (error growth, distributions) into out_dir."""
     out_dir = Path(out_dir)
     paths = write_tables(ds, out_dir, var, overwrite=overwrite)
-    for name in ("error_growth.png", "dist_by_satellites.png", "dist_by_duration.png"):
-        _check_write(out_dir / name, overwrite)
-    growth = plot_error_growth(ds, out_dir / "error_growth.png")
-    if growth is not None:
-        paths["error_growth"] = growth
-    paths.update(plot_distributions(ds, out_dir, var))
+    views = solution_views(ds)
+    for solution, _ in views:
+        sfx = "" if solution in (None, "forward") else f"_{solution}"
+        for name in ("error_growth", "dist_by_satellites", "dist_by_duration"):
+            _check_write(out_dir / f"{name}{sfx}.png", overwrite)
+    for solution, view in views:
+        sfx = "" if solution in (None, "forward") else f"_{solution}"
+        growth = plot_error_growth(view, out_dir / f"error_growth{sfx}.png")
+        if growth is not None:
+            paths[f"error_growth{sfx}"] = growth
+        for key, p in plot_distributions(view, out_dir, var, sfx).items():
+            paths[f"{key}{sfx}"] = p
     return paths

@@ -16,6 +16,9 @@ from jaxnav.study import metrics as mt
 from jaxnav.study.config import ALL
 from jaxnav.study.plan import DIMS, Plan
 
+#: The ``solution`` coordinate of a study with ``smooth = true``.
+SOLUTIONS = ("forward", "smoothed")
+
 RESULTS_FILE = "results.nc"
 MANIFEST_FILE = "manifest.json"
 CHUNK_DIR = "chunks"
@@ -232,7 +235,8 @@ def assemble(plan: Plan, store: _Store, groups, config_hash: str) -> xr.Dataset:
     data_vars = {}
     for k in METRIC_FIELDS:
         a = np.stack([pg[k] for pg in per_group]).reshape(lead + per_group[0][k].shape[1:])
-        dims = DIMS + (("enu",) if a.ndim > len(DIMS) else ())
+        sol = ("solution",) if cfg.smooth else ()
+        dims = DIMS + sol + (("enu",) if a.ndim > len(DIMS) + len(sol) else ())
         data_vars[k] = xr.Variable(dims, a, {"units": _UNITS.get(k, "1")})
     dt = float(plan.timeline.epoch_dt_s)
     coords = {
@@ -247,6 +251,9 @@ def assemble(plan: Plan, store: _Store, groups, config_hash: str) -> xr.Dataset:
         "policy": ("policy", np.asarray(cfg.policies, dtype=object)),
         "ramp": ("ramp", plan.ramps * dt, {"units": "s"}),
         "enu": ("enu", np.asarray(["east", "north", "up"], dtype=object)),
+        **({"solution": ("solution", np.asarray(SOLUTIONS, dtype=object),
+                         {"long_name": "forward filter, or forward + RTS smoother over the "
+                                       "scenario window"})} if cfg.smooth else {}),
         "start_s": (("duration", "placement"), plan.starts * dt,
                     {"units": "s", "long_name": "outage start after the first epoch"}),
         "length_s": (("duration", "placement"), plan.lengths * dt, {"units": "s"}),
@@ -264,7 +271,8 @@ def assemble(plan: Plan, store: _Store, groups, config_hash: str) -> xr.Dataset:
         L = plan.prefix + plan.window
         t_rel = (np.arange(L)[None, :] - plan.prefix - f["ramp"][:, None]) * dt
         ds["trace_err_enu_m"] = xr.Variable(
-            ("trace", "trace_epoch", "enu"), np.stack([t[2] for t in traces]),
+            ("trace",) + (("solution",) if cfg.smooth else ()) + ("trace_epoch", "enu"),
+            np.stack([t[2] for t in traces]),
             {"units": "m", "long_name": "estimate - truth, ENU, per epoch (NaN after recovery)"},
         )
         ds = ds.assign_coords(

@@ -40,6 +40,14 @@ Documented choices:
   after it (schedule files: only the first).
 - Metric window ``core``: the outage proper [start, start + length); the ramps before and after
   count as recovery / pre-outage. ``with_ramp``: [start - ramp, start + length + ramp).
+- ``smooth = true``: each scenario's window is also run through the filter's RTS smoother
+  (``FilterOps.smooth``: forward pass from the checkpoint, backward pass over the window) and
+  every metric gets a ``solution`` axis ("forward", "smoothed"). The smoother conditions on the
+  data before the window (through the checkpoint) and on the window itself, i.e. the outage,
+  its ramps and the recovery period after it, not on the rest of the drive: a longer
+  ``recovery_s`` lets more of the later data in. The forward metrics are those of a study
+  without ``smooth`` (tests/test_sweep.py). Memory: the forward pass keeps 3 n^2 float64 per
+  window epoch and scenario (``jaxnav.filter.smoother``).
 - Per-epoch ENU error traces are kept for at most ``max_traces`` scenarios per group (for the
   error-growth plot): realization 0, placement 0, first policy and ramp, every satellites-kept
   level at the longest duration first.
@@ -122,6 +130,7 @@ def tight_ops() -> FilterOps:
         readout=lambda out: (mt.track(out.llh, out.vel_enu, out.euler), out.P_nav),
         get_keep=lambda inp: inp.keep,
         with_keep=lambda inp, keep: inp._replace(keep=keep),
+        smooth=tight.run_smoother,
     )
 
 
@@ -205,7 +214,7 @@ class _GroupRunner:
                 tf_static, self.ops, tuple(plan.cfg.policies), int(plan.cfg.seed),
                 float(prob.elevation_mask_rad), int(plan.timeline.n_epochs), plan.window,
                 plan.prefix, plan.recovery, float(plan.timeline.epoch_dt_s), plan.mcfg,
-                plan.cfg.metric_window == "with_ramp",
+                plan.cfg.metric_window == "with_ramp", bool(plan.cfg.smooth),
             )
             # The checkpoint count is baked into the compiled scan (its buffer), not visible in
             # the argument shapes: it must be part of the cache key.
@@ -348,6 +357,15 @@ def check_study(cfg: StudyConfig, factory, *, force: bool = False, workers: int 
     own chunk), and satellites_kept against the scenario's slots. Returns the plan; touches no
     file (``jaxnav sweep --check``)."""
     validate(cfg, modes=getattr(factory, "modes", None), systems=getattr(factory, "systems", None))
+    if cfg.smooth:
+        for mode in cfg.modes:
+            for system in cfg.systems:
+                if group_ops(factory, mode, system).smooth is None:
+                    raise ConfigError(
+                        f"study.smooth = true: the {mode!r} / {system!r} filter has no RTS "
+                        "smoother (the PPP -> LC cascade); expected smooth = false or modes "
+                        "with a smoother"
+                    )
     _check_memory(cfg, factory, rows=1, chunk_epochs=0, force=force)  # the drive alone
     plan = make_plan(cfg, factory.timeline(cfg))
     _check_memory(cfg, factory, rows=plan.max_rows, chunk_epochs=cfg.chunk_size * plan.window,
