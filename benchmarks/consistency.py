@@ -23,6 +23,10 @@ initial covariance (so the first minutes are under-dispersed by construction and
   the ANIS is biased low by the gates. Tight systems: the tight filter's; the cascade: its loose
   filter's (position / velocity fixes).
 
+With ``--smooth`` every cell with a smoother (not the cascade) also reports the RTS-smoothed
+solution's position and velocity ANEES over the same epochs (``anees_pos_smoothed``,
+``anees_vel_smoothed``; same band), from ``FilterOps.smooth`` over the whole drive.
+
 The last line printed is JSON ``{"<mode>/<system>": {"anees_pos": .., "anees_vel": ..,
 "anis": .., "dof": 3, "runs": N, "lo": .., "hi": .., "nis_lo": .., "nis_hi": ..}, ...}``.
 
@@ -30,6 +34,7 @@ The last line printed is JSON ``{"<mode>/<system>": {"anees_pos": .., "anees_vel
     python benchmarks/consistency.py --quick    # 16 runs x 420 s, a few cells (minutes)
     python benchmarks/consistency.py --environment urban --cells float_ppp/riss,df_code/riss
     python benchmarks/consistency.py --lc-fix-errors correlated --cells float_ppp/lc_ins15
+    python benchmarks/consistency.py --quick --smooth --cells float_ppp/riss,float_ppp/ins15
 """
 
 from __future__ import annotations
@@ -64,27 +69,36 @@ def _vel_nees(est: mt.Track, true: mt.Track, P_nav):
     return jnp.einsum("ti,ti->t", e, jnp.linalg.solve(P, e[..., None])[..., 0])
 
 
-def cell(factory: SimFactory, mode: str, system: str, n_runs: int, settle_s: float) -> dict:
-    """ANEES (position, velocity) and ANIS of one (mode, system) over seeds 0..n_runs-1."""
+def cell(factory: SimFactory, mode: str, system: str, n_runs: int, settle_s: float,
+         smooth: bool = False) -> dict:
+    """ANEES (position, velocity) and ANIS of one (mode, system) over seeds 0..n_runs-1; with
+    ``smooth`` also the smoothed solution's ANEES (cells whose FilterOps has a smoother)."""
     ops = factory.ops_for(mode, system)
-    q_pos, q_vel, nis, dof = [], [], [], []
+    smooth = smooth and ops.smooth is not None
+    acc = [[] for _ in range(6 if smooth else 4)]
     run = None
     for seed in range(n_runs):
         prob = factory.build(None, mode, system, seed)
         if run is None:
-            def one(tf, carry0, inputs, truth):
-                out = ops.run(tf, carry0, inputs)[1]
+            def nees(out, truth):
                 est, P_nav = ops.readout(out)
-                qp, _ = mt.nees(est, truth, P_nav)
+                return mt.nees(est, truth, P_nav)[0], _vel_nees(est, truth, P_nav)
+
+            def one(tf, carry0, inputs, truth):
+                if smooth:
+                    out, smo = ops.smooth(tf, carry0, inputs)
+                else:
+                    out = ops.run(tf, carry0, inputs)[1]
                 part = out.lc if system in LC_SYSTEMS else out
-                return qp, _vel_nees(est, truth, P_nav), part.nis, part.dof
+                r = (*nees(out, truth), part.nis, part.dof)
+                return r + nees(smo, truth) if smooth else r
             run = jax.jit(one)
         r = run(prob.tf, prob.carry0, prob.inputs, prob.truth)
-        for acc, v in zip((q_pos, q_vel, nis, dof), r, strict=True):
-            acc.append(np.asarray(v))
-    q_pos, q_vel, nis, dof = (np.stack(a) for a in (q_pos, q_vel, nis, dof))
+        for a, v in zip(acc, r, strict=True):
+            a.append(np.asarray(v))
     k0 = int(round(settle_s / factory.cfg.epoch_interval_s))
-    q_pos, q_vel, nis, dof = (a[:, k0:] for a in (q_pos, q_vel, nis, dof))
+    arrays = [np.stack(a)[:, k0:] for a in acc]
+    q_pos, q_vel, nis, dof = arrays[:4]
     lo, hi = (float(b) for b in mt.chi2_interval(3, n_runs))
     d = float(dof.sum())
     out = {
@@ -96,6 +110,9 @@ def cell(factory: SimFactory, mode: str, system: str, n_runs: int, settle_s: flo
         "lo": lo,
         "hi": hi,
     }
+    if smooth:
+        out |= {"anees_pos_smoothed": float(arrays[4].mean()),
+                "anees_vel_smoothed": float(arrays[5].mean())}
     if d > 0:
         nis_lo, nis_hi = mt.chi2_interval(1, int(d))  # chi2(D) / D
         out |= {"anis": float(nis.sum() / d), "nis_lo": float(nis_lo), "nis_hi": float(nis_hi)}
@@ -115,6 +132,8 @@ def main(argv=None) -> int:
                    help="cycle-slip / loss-of-lock rates of the simulated receiver (default "
                         "open_sky); the filters get LLI + the GF / MW detector's flags")
     p.add_argument("--cells", help="comma-separated mode/system cells instead of the default set")
+    p.add_argument("--smooth", action="store_true",
+                   help="also the RTS-smoothed solution's ANEES (cells with a smoother)")
     p.add_argument("--results", type=Path, default=benchutil.RESULTS_MD)
     a = p.parse_args(argv)
     n_runs = a.runs or (16 if a.quick else 200)
@@ -139,17 +158,22 @@ def main(argv=None) -> int:
                  f"errors {a.lc_fix_errors}), epochs "
                  f"after {a.settle:.0f} s; bands two-sided 95 %.")
     lines.append("")
+    smo_head = " smoothed ANEES pos / vel |" if a.smooth else ""
     lines.append("| mode / system | ANEES pos | ANEES vel | band (3 dof) | median NEES pos | ANIS "
-                 "| NIS band | s |")
-    lines.append("|---|---|---|---|---|---|---|---|")
+                 f"| NIS band |{smo_head} s |")
+    lines.append("|---|---|---|---|---|---|---|---|" + ("---|" if a.smooth else ""))
     for mode, system in cells:
         t0 = time.time()
-        c = cell(factory, mode, system, n_runs, a.settle)
+        c = cell(factory, mode, system, n_runs, a.settle, a.smooth)
         figures[f"{mode}/{system}"] = c
         nis = (f"{c['anis']:.2f} | {c['nis_lo']:.2f}-{c['nis_hi']:.2f}" if "anis" in c
                else "- | -")
+        smo = ""
+        if a.smooth:
+            smo = (f" {c['anees_pos_smoothed']:.2f} / {c['anees_vel_smoothed']:.2f} |"
+                   if "anees_pos_smoothed" in c else " - |")
         row = (f"| {mode} / {system} | {c['anees_pos']:.2f} | {c['anees_vel']:.2f} | "
-               f"{c['lo']:.2f}-{c['hi']:.2f} | {c['median_nees_pos']:.2f} | {nis} | "
+               f"{c['lo']:.2f}-{c['hi']:.2f} | {c['median_nees_pos']:.2f} | {nis} |{smo} "
                f"{time.time() - t0:.0f} |")
         lines.append(row)
         print(row, flush=True)

@@ -21,6 +21,7 @@ import math
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import equinox as eqx
@@ -215,3 +216,48 @@ def test_tune_writes_a_config_jaxnav_lc_loads(tmp_path, capsys):
 
 if __name__ == "__main__":  # _in_fresh_process: python tests/test_tune.py CHECK ARGS...
     globals()[sys.argv[1]](*sys.argv[2:])
+
+
+def test_fit_table_prints_an_unbounded_factor_as_such():
+    """A flat direction's 1-sigma factor exp(sigma) overflows: the table says '> 1e6' or 'inf',
+    not a 140-digit number (seen on the car with --outage-grid)."""
+    res = tn.FitResult(
+        value=np.array([1.0, 2.0, 3.0]), start=np.ones(3), sigma_log=np.array([0.1, 400.0, np.inf]),
+        identified=np.array([True, False, False]), names=("a", "b", "c"), nll=0.0, nll_start=1.0,
+        steps=1, evaluations=1, converged=True, starts=((1.0, 0.0),),
+        hessian_eigvals=np.ones(3))
+    lines = res.table().splitlines()
+    assert lines[2].split()[3] == ">" and lines[2].split()[4] == "1e6"
+    assert lines[3].split()[3] == "inf"
+    assert max(len(ln) for ln in lines) < 120
+
+
+@needs_drive
+def test_outage_grid_withholds_fixes_in_the_likelihood():
+    """``jaxnav tune --outage-grid``: the NLL is that of the loose run with the grid's fixes
+    withheld (the forward filter's own per-epoch NIS and log det over the aligned epochs), and
+    differs from the all-fixes NLL."""
+    from jaxnav.apps import lc_filter as lcf
+    from jaxnav.apps import tune as app
+    from jaxnav.apps.car_config import load_config
+    from jaxnav.apps.lc_drive import load_drive
+
+    cfg = load_config(CONFIG)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        drive = load_drive(str(DATA / "imu_1934.csv"), None, str(DATA / "gnss_1934_sf.pos"), cfg,
+                           duration_s=120.0)
+    keys = app.parse_params("constraints.nhc_sigma_m_s", cfg)
+    _, slots = app._layout(keys, cfg)
+    withheld = lcf.plan_outages(drive, lcf.grid_schedule(drive, 60.0, 20.0, 10.0)).withheld
+    theta = jnp.asarray(app._values(cfg, slots))
+    nll_out = float(jax.jit(app.drive_nll(cfg, drive, slots, withheld))(theta))
+    nll_all = float(jax.jit(app.drive_nll(cfg, drive, slots))(theta))
+    lf = lcf.build_filter(cfg, drive)
+    _, out = lcf.run_filter(lf, lcf.initial_carry(cfg, lf, drive),
+                            lcf.epoch_inputs(cfg, drive, withheld))
+    on = np.asarray(out.aligned)
+    ref = 0.5 * float(np.sum(np.asarray(out.nis)[on] + np.asarray(out.logdet)[on]
+                             + np.asarray(out.dof)[on] * np.log(2 * np.pi)))
+    assert nll_out == pytest.approx(ref, rel=1e-9)
+    assert abs(nll_out - nll_all) > 1.0

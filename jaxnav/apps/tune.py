@@ -2,7 +2,7 @@
 
     jaxnav tune --config CAR.toml --imu IMU.csv [--imu-tag TAG] --gnss GNSS.pos
                 --params KEY[,KEY...] --out TUNED.toml [--duration S] [--starts 1,0.5,2]
-                [--max-steps N] [--overwrite]
+                [--max-steps N] [--outage-grid START:STEP:LENGTH] [--overwrite]
 
 Fits the chosen ``[section] key`` values of a ``jaxnav lc`` configuration by maximum likelihood
 of the loose filter's innovations over the drive with every GNSS fix used
@@ -10,6 +10,12 @@ of the loose filter's innovations over the drive with every GNSS fix used
 uncertainty from the Hessian, parameters the data cannot identify named as such). Epochs before
 the in-motion alignment are left out of the likelihood (their heading is unknown: the
 linearisation, not the noise, dominates their innovations).
+
+``--outage-grid`` withholds the GNSS of outages START, START + STEP, ... (``jaxnav lc``'s grid)
+inside the fitting span: the innovations of the first fixes after each outage are then the
+filter's prediction errors over the outage, with their predicted covariance, and the fit also
+asks the process noise to explain drift over that horizon, not only over one epoch (chosen for
+outage studies, whose sigmas are read during outages).
 
 Writes TUNED.toml: the input configuration, every comment kept, with the fitted values in place
 and a comment on each naming its start value and 1-sigma factor; ``jaxnav lc --config
@@ -34,7 +40,14 @@ import jaxnav
 from jaxnav.apps import run_command
 from jaxnav.apps.car_config import CarConfig, CarConfigError, load_config
 from jaxnav.apps.lc_drive import Drive, load_drive
-from jaxnav.apps.lc_filter import build_filter, epoch_inputs, initial_state
+from jaxnav.apps.lc_filter import (
+    build_filter,
+    epoch_inputs,
+    grid_schedule,
+    initial_state,
+    parse_grid,
+    plan_outages,
+)
 from jaxnav.filter import loose
 from jaxnav.filter import tune as tn
 
@@ -108,9 +121,10 @@ def _with_values(cfg: CarConfig, slots, theta):
     return dataclasses.replace(cfg, **changes)
 
 
-def drive_nll(cfg0: CarConfig, drive: Drive, slots):
-    """NLL(theta) of the loose filter on the drive (every fix used), aligned epochs only."""
-    base = epoch_inputs(cfg0, drive)
+def drive_nll(cfg0: CarConfig, drive: Drive, slots, withheld=None):
+    """NLL(theta) of the loose filter on the drive, aligned epochs only; ``withheld`` [E] bool:
+    epochs whose fix is withheld (outages), else every fix is used."""
+    base = epoch_inputs(cfg0, drive, withheld)
     nav0, sig, moving = initial_state(cfg0, build_filter(cfg0, drive), drive)
     eye = jnp.eye(3)
 
@@ -201,6 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--starts", default="1,0.5,2",
                    help="start factors applied to every parameter (default 1,0.5,2)")
     p.add_argument("--max-steps", type=int, default=40, help="L-BFGS iterations per start")
+    p.add_argument("--outage-grid", type=parse_grid, metavar="START:STEP:LENGTH",
+                   help="withhold the GNSS of these outages in the fit (module docstring)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     return p
 
@@ -227,9 +243,14 @@ def _main(args) -> int:
     keys = parse_params(args.params, cfg)
     drive = load_drive(args.imu, args.imu_tag, args.gnss, cfg, duration_s=args.duration)
     names, slots = _layout(keys, cfg)
-    print(f"{PROG}: {drive.n_epochs} epochs of {drive.epoch_dt_s:g} s, fitting {len(names)} "
-          f"parameters from {len(starts)} starts", flush=True)
-    res = tn.fit(drive_nll(cfg, drive, slots), _values(cfg, slots), names,
+    withheld = None
+    if args.outage_grid is not None:
+        plan = plan_outages(drive, grid_schedule(drive, *args.outage_grid))
+        withheld = plan.withheld
+    print(f"{PROG}: {drive.n_epochs} epochs of {drive.epoch_dt_s:g} s"
+          + (f" ({len(plan.ids)} outages withheld)" if withheld is not None else "")
+          + f", fitting {len(names)} parameters from {len(starts)} starts", flush=True)
+    res = tn.fit(drive_nll(cfg, drive, slots, withheld), _values(cfg, slots), names,
                  start_factors=starts, max_steps=args.max_steps)
     print(res.table())
     print(f"NLL {res.nll_start:.1f} at the start, {res.nll:.1f} fitted ({res.steps} steps, "

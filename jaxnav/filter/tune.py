@@ -78,7 +78,8 @@ class FitResult:
         lines = [f"{'parameter':44s} {'start':>12s} {'fitted':>12s} {'1-sigma x/':>10s}"]
         for i, name in enumerate(self.names):
             f = self.factor()[i]
-            fac = f"{f:10.3f}" if np.isfinite(f) else f"{'inf':>10s}"
+            # a flat direction's sigma overflows exp(): shown as "> 1e6", not 140 digits
+            fac = f"{f:10.3f}" if f < 1e6 else f"{'> 1e6' if np.isfinite(f) else 'inf':>10s}"
             note = "" if self.identified[i] else "  not identified by these data"
             lines.append(f"{name:44s} {self.start[i]:12.5g} {self.value[i]:12.5g} {fac}{note}")
         return "\n".join(lines)
