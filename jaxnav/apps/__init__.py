@@ -10,6 +10,22 @@ from jaxnav.io.errors import InputError
 INPUT_ERRORS = (InputError, ValueError, FileNotFoundError, FileExistsError)
 
 
+#: ``--solution`` values of the recorded-data commands: the forward filter, or "combined" =
+#: forward filter + RTS smoother (RTKPOST's names). No "backward": running an INS backwards needs a
+#: reverse-time mechanization, which jaxnav does not have.
+SOLUTIONS = ("forward", "combined")
+
+
+def add_solution_options(parser) -> None:
+    """``--solution forward|combined`` and its shorthand ``--smooth`` (dest ``solution``)."""
+    g = parser.add_mutually_exclusive_group()
+    g.add_argument("--solution", choices=SOLUTIONS, default="forward",
+                   help="forward filter, or combined = forward filter + RTS smoother (every "
+                        "epoch from all the data, as RTKPOST's combined); default forward")
+    g.add_argument("--smooth", dest="solution", action="store_const", const="combined",
+                   help="same as --solution combined")
+
+
 def run_command(prog: str, parser, body, argv=None) -> int:
     """Parse ``argv`` (default ``sys.argv[1:]``) with ``parser`` and return ``body(args)``; an
     input error is printed as ``PROG: error: ...`` on stderr and gives exit code 2."""

@@ -77,7 +77,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
-from jaxnav.apps import run_command
+from jaxnav.apps import add_solution_options, run_command
 from jaxnav.apps.car_config import (  # noqa: F401  (re-exported: the command's public names)
     SWEEP_MODES,
     UG_M_S2,
@@ -122,8 +122,6 @@ from jaxnav.study import metrics as mt
 from jaxnav.study import outages as ot
 
 PROG = "jaxnav lc"
-#: ``--solution`` values (module docstring: no backward solution for an INS).
-SOLUTIONS = ("forward", "combined")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -150,12 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="outages START, START+STEP, ... of LENGTH seconds")
     p.add_argument("--duration", type=float, help="process only the first DURATION s of the log")
     p.add_argument("--out", required=True, help="output .pos (INS at the antenna)")
-    s = p.add_mutually_exclusive_group()
-    s.add_argument("--solution", choices=SOLUTIONS, default="forward",
-                   help="forward filter, or combined = forward filter + RTS smoother (all data "
-                        "for every epoch, as RTKPOST's combined); default forward")
-    s.add_argument("--smooth", dest="solution", action="store_const", const="combined",
-                   help="same as --solution combined")
+    add_solution_options(p)
     p.add_argument("--sweep", metavar="DIR", help="also run the outage sweep of [sweep] into DIR")
     p.add_argument("--overwrite", action="store_true", help="replace an existing sweep in DIR")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -50,6 +50,7 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
+from jaxnav.apps import add_solution_options
 from jaxnav.core.gpstime import gps_seconds_to_datetime64
 from jaxnav.filter import ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
@@ -67,10 +68,6 @@ CLOCK_PSD_M2_S = ppp.RECORDED_CLOCK_PSD_M2_S
 REAL_CODE_SIGMA_M = ppp.RECORDED_CODE_SIGMA_M
 #: Initial position 1-sigma [m] around the single-point solution (chosen: SPP is metre-level).
 INIT_POS_SIGMA_M = 30.0
-
-
-#: ``--solution`` values: no "backward" (module docstring).
-SOLUTIONS = ("forward", "combined")
 
 
 def _parse_systems(text: str) -> tuple[str, ...]:
@@ -134,12 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     p1c1.add_argument("--no-p1c1", action="store_true",
                       help="use the C/A code as P1 (accepts up to ~1 m of satellite bias)")
     p.add_argument("--out", required=True, help="output RTKLIB .pos file")
-    sol = p.add_mutually_exclusive_group()
-    sol.add_argument("--solution", choices=SOLUTIONS, default="forward",
-                     help="forward filter, or combined = forward filter + RTS smoother (every "
-                          "epoch from all the data, as RTKPOST's combined); default forward")
-    sol.add_argument("--smooth", dest="solution", action="store_const", const="combined",
-                     help="same as --solution combined")
+    add_solution_options(p)
     return p
 
 

@@ -134,6 +134,8 @@ class StudyConfig:
         d = dataclasses.asdict(self)
         d["satellites_kept"] = ["all" if k == ALL else k for k in self.satellites_kept]
         d["scenario"] = self.scenario_dict
+        if not d["smooth"]:  # a key added with a default leaves older studies' hashes as they were
+            del d["smooth"]
         return _jsonable(d)
 
     def to_json(self) -> str:
