@@ -103,6 +103,7 @@ class CarConfig:
     sweep_spacing_s: float = 5.0
     sweep_convergence_s: float = 60.0
     sweep_recovery_s: float = 10.0
+    sweep_smooth: bool = False
     sweep_chunk_size: int = 128
 
     def to_json(self) -> str:
@@ -147,7 +148,8 @@ SCHEMA: dict[str, dict[str, schema.Rule]] = {
                "gate_chi2": schema.number(0, strict=True, specials={"inf": float("inf")})},
     "sweep": {"modes": schema.items(schema.choice(SWEEP_MODES)),
               "durations_s": schema.items(_POS), "spacing_s": _POS, "convergence_s": _NONNEG,
-              "recovery_s": _NONNEG, "chunk_size": schema.whole(1)},
+              "recovery_s": _NONNEG, "chunk_size": schema.whole(1),
+              "smooth": schema.boolean()},
 }
 
 

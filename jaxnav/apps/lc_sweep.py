@@ -100,7 +100,7 @@ def study_config(cfg: CarConfig, drive: Drive):
     return validate(StudyConfig(
         name="lc_real_drive", modes=cfg.sweep_modes, systems=(cfg.imu_errors_states,),
         durations_s=cfg.sweep_durations_s, satellites_kept=(0,), recovery_s=cfg.sweep_recovery_s,
-        chunk_size=cfg.sweep_chunk_size, max_traces=8,
+        chunk_size=cfg.sweep_chunk_size, max_traces=8, smooth=cfg.sweep_smooth,
         placement=PlacementConfig(kind="grid", convergence_s=cfg.sweep_convergence_s,
                                   spacing_s=cfg.sweep_spacing_s),
     ))
@@ -121,7 +121,11 @@ def run_drive_sweep(cfg: CarConfig, drive: Drive, out_dir, fingerprint: str, *,
 
 
 def duration_table(ds) -> str:
-    """Markdown: max 2D error per duration (rows) and mode (columns): mean / median / p90."""
+    """Markdown: max 2D error per duration (rows) and mode (columns): mean / median / p90; one
+    table per solution of a smoothed sweep."""
+    if "solution" in ds.dims:
+        return "\n\n".join(f"{s}:\n" + duration_table(ds.sel(solution=s))
+                             for s in ds["solution"].values)
     lines = ["| duration | outages | " + " | ".join(
         f"{m}: mean / median / p90 [m]" for m in ds["mode"].values) + " |"]
     lines.append("|---|---|" + "---|" * ds.sizes["mode"])
