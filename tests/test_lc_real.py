@@ -297,6 +297,8 @@ def _config_text(edit):
         (lambda t: t.replace("cov_substeps = 5", "cov_substeps = 2.5"),
          "filter.cov_substeps = 2.5: expected a whole number >= 1"),
         (lambda t: t.replace("[imu]\n", "[imu\n"), "not valid TOML"),
+        (lambda t: t.replace("smooth = false ", "smooth = 1 "),
+         "sweep.smooth = 1: expected true or false"),
     ],
 )
 def test_bad_config_keys_give_a_clear_error(tmp_path, edit, message):
