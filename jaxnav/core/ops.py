@@ -14,6 +14,7 @@ class FilterOps(NamedTuple):
     readout: Callable  # outputs [T, ...] -> (core.track.Track, P_nav [T, k, k] or None)
     get_keep: Callable  # inputs -> keep [T, S] bool
     with_keep: Callable  # (inputs, keep [T, S]) -> inputs
-    # (tf, carry, inputs [T, ...]) -> (forward outputs, RTS-smoothed outputs), both [T, ...];
-    # None: the filter has no smoother (a study with ``smooth = true`` is refused)
+    # (tf, carry, inputs [T, ...], n_valid) -> (forward outputs, RTS-smoothed outputs), both
+    # [T, ...], the smoother over the first n_valid epochs only (traced int; filter.smoother's
+    # cut_after); None: the filter has no smoother (a study with ``smooth = true`` is refused)
     smooth: Callable | None = None

@@ -648,7 +648,7 @@ def run(lf: LooseFilter, carry: Carry, inputs: EpochInput):
     return jax.lax.scan(lambda c, i: epoch_step(lf, c, i), carry, inputs)
 
 
-def run_smoother(lf: LooseFilter, carry: Carry, inputs: EpochInput):
+def run_smoother(lf: LooseFilter, carry: Carry, inputs: EpochInput, n_valid=None):
     """Forward filter and RTS smoother (``jaxnav.filter.smoother``) over stacked epochs.
 
     Returns (forward EpochOutput, smoothed EpochOutput): the smoothed one has the forward
@@ -658,13 +658,15 @@ def run_smoother(lf: LooseFilter, carry: Carry, inputs: EpochInput):
     Memory: the forward pass keeps 3 n^2 + O(n) float64 per epoch (smoother module docstring).
     """
     _, (out, rec) = jax.lax.scan(lambda c, i: epoch_step(lf, c, i, record=True), carry, inputs)
-    return out, smoothed_outputs(lf, out, rec)
+    return out, smoothed_outputs(lf, out, rec, n_valid)
 
 
-def smoothed_outputs(lf: LooseFilter, out: EpochOutput, rec: smoother.Record) -> EpochOutput:
-    """The forward outputs with the RTS-smoothed states and covariances in place."""
+def smoothed_outputs(lf: LooseFilter, out: EpochOutput, rec: smoother.Record,
+                     n_valid=None) -> EpochOutput:
+    """The forward outputs with the RTS-smoothed states and covariances in place (``n_valid``:
+    ``smoother.error_state``)."""
     layout = lf.layout
-    dx_s, P_s = smoother.error_state(rec)
+    dx_s, P_s = smoother.error_state(rec, n_valid)
     n_nav = layout.sl("att").stop
 
     def one(nav, sensors, dx):

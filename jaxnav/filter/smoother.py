@@ -100,7 +100,17 @@ def rts(
     return (jnp.concatenate([xs, x_post[-1:]]), jnp.concatenate([Ps, P_post[-1:]]))
 
 
-def error_state(rec: Record) -> tuple[Float[Array, "T n"], Float[Array, "T n n"]]:
+def cut_after(Phi: Float[Array, "T n n"], n_valid) -> Float[Array, "T n n"]:
+    """Phi with the transitions into epochs >= ``n_valid`` (traced) zero: the backward pass
+    then starts afresh at epoch n_valid - 1 and nothing after it reaches the epochs before
+    (a sweep window's padding or data beyond its recovery period)."""
+    k = jnp.arange(Phi.shape[0])
+    return jnp.where((k >= n_valid)[:, None, None], 0.0, Phi)
+
+
+def error_state(rec: Record, n_valid=None) -> tuple[Float[Array, "T n"], Float[Array, "T n n"]]:
     """Smoothed error dx_k^s of each forward nominal x_hat_k+ and its covariance (module
-    docstring: x_k+ = 0, or ``x_post``, and x_k- = -dx_hat_k)."""
-    return rts(rec.x_post, rec.P_post, -rec.dx, rec.P_prior, rec.Phi)
+    docstring: x_k+ = 0, or ``x_post``, and x_k- = -dx_hat_k); ``n_valid``: smooth the first
+    n_valid epochs only (``cut_after``), the rest are smoothed on their own."""
+    Phi = rec.Phi if n_valid is None else cut_after(rec.Phi, n_valid)
+    return rts(rec.x_post, rec.P_post, -rec.dx, rec.P_prior, Phi)

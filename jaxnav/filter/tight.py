@@ -412,7 +412,7 @@ def run(tf: TightFilter, carry: Carry, inputs: EpochInput) -> tuple[Carry, Epoch
     return jax.lax.scan(lambda c, i: epoch_step(tf, c, i), carry, inputs)
 
 
-def run_smoother(tf: TightFilter, carry: Carry, inputs: EpochInput
+def run_smoother(tf: TightFilter, carry: Carry, inputs: EpochInput, n_valid=None
                  ) -> tuple[EpochOutput, EpochOutput]:
     """Forward filter and RTS smoother (``jaxnav.filter.smoother``) over stacked epochs.
 
@@ -423,13 +423,15 @@ def run_smoother(tf: TightFilter, carry: Carry, inputs: EpochInput
     simulator's slots; 2.9 kB for RISS9 + DF code, n = 11).
     """
     _, (out, rec) = jax.lax.scan(lambda c, i: epoch_step(tf, c, i, record=True), carry, inputs)
-    return out, smoothed_outputs(tf, out, rec)
+    return out, smoothed_outputs(tf, out, rec, n_valid)
 
 
-def smoothed_outputs(tf: TightFilter, out: EpochOutput, rec: smoother.Record) -> EpochOutput:
-    """The forward outputs with the RTS-smoothed navigation states and covariances in place."""
+def smoothed_outputs(tf: TightFilter, out: EpochOutput, rec: smoother.Record,
+                     n_valid=None) -> EpochOutput:
+    """The forward outputs with the RTS-smoothed navigation states and covariances in place
+    (``n_valid``: ``smoother.error_state``)."""
     layout = tf.layout
-    dx_s, P_s = smoother.error_state(rec)
+    dx_s, P_s = smoother.error_state(rec, n_valid)
 
     def one(nav, sensors, dx, P):
         nav_s, _ = tf.system.feedback(nav, sensors, dx, layout)

@@ -83,13 +83,20 @@ class _Static(NamedTuple):
     smooth: bool = False  # also the RTS-smoothed metrics (a leading solution axis of 2)
 
 
+def _n_valid(st: _Static, length, ramp, sel):
+    """Epochs of a scenario's record (prefix + window) that count: up to the end of its
+    recovery period or of the drive."""
+    P = st.prefix
+    return jnp.minimum(P + 2 * ramp + length + st.recovery, P + st.n_epochs - sel)
+
+
 def _record_metrics(st: _Static, est_rec, truth_rec, P_rec, start, length, ramp, sel):
     P = st.prefix
     if st.with_ramp:
         m_start, m_len = P, length + 2 * ramp
     else:
         m_start, m_len = P + ramp, length
-    n_valid = jnp.minimum(P + 2 * ramp + length + st.recovery, P + st.n_epochs - sel)
+    n_valid = _n_valid(st, length, ramp, sel)
     m = mt.window_metrics(est_rec, truth_rec, P_rec, m_start, m_len, st.epoch_dt_s, st.mcfg,
                           n_valid)
     err = mt.enu_errors(est_rec.llh, truth_rec.llh)
@@ -121,9 +128,10 @@ def _one_scenario(st: _Static, ctx: _Context, s: _Batch):
 
     if not st.smooth:
         return metrics(st.ops.run(tf, carry, inp)[1])
-    # Smoothed over the scenario's window only (sweep docstring: "smooth"); the prefix of the
-    # record is the forward full run's for both solutions.
-    fwd, smo = st.ops.smooth(tf, carry, inp)
+    # Smoothed over the scenario's valid epochs only (sweep docstring: "smooth"): neither the
+    # padding past the drive's end nor data beyond its recovery period reaches it. The prefix of
+    # the record is the forward full run's for both solutions.
+    fwd, smo = st.ops.smooth(tf, carry, inp, _n_valid(st, s.length, s.ramp, s.sel) - P)
     return jax.tree.map(lambda a, b: jnp.stack([a, b]), metrics(fwd), metrics(smo))
 
 

@@ -43,10 +43,14 @@ Documented choices:
 - ``smooth = true``: each scenario's window is also run through the filter's RTS smoother
   (``FilterOps.smooth``: forward pass from the checkpoint, backward pass over the window) and
   every metric gets a ``solution`` axis ("forward", "smoothed"). The smoother conditions on the
-  data before the window (through the checkpoint) and on the window itself, i.e. the outage,
-  its ramps and the recovery period after it, not on the rest of the drive: a longer
-  ``recovery_s`` lets more of the later data in. The forward metrics are those of a study
-  without ``smooth`` (tests/test_sweep.py). Memory: the forward pass keeps 3 n^2 float64 per
+  data before the window (through the checkpoint) and on the scenario's own epochs: its ramps,
+  the outage and its ``recovery_s`` after it (the same for every duration and ramp of the
+  study; window padding and the rest of the drive are cut off, ``smoother.cut_after``): a longer
+  ``recovery_s`` lets more of the later data in. The P pre-outage epochs of the metric record
+  are the forward full run's for both solutions, so the smoothed slice's ``pre_2d_rms_m`` is the
+  forward one and its re-convergence threshold is set from it, and its traces start with those
+  forward epochs. The forward metrics are those of a study without ``smooth``
+  (tests/test_sweep.py). Memory: the forward pass keeps 3 n^2 float64 per
   window epoch and scenario (``jaxnav.filter.smoother``).
 - Per-epoch ENU error traces are kept for at most ``max_traces`` scenarios per group (for the
   error-growth plot): realization 0, placement 0, first policy and ramp, every satellites-kept
