@@ -210,20 +210,27 @@ def test_heading_from_course_then_converges_in_turns(runs):
     assert late < 0.6
 
 
-def test_position_nees_within_chi_square_band(runs):
-    """Ensemble-averaged position NEES (3 dof, N runs) against chi2(3N)/N, 95 % two-sided."""
-    out, sel = runs["out"], _sel(runs, "full")
-    dllh = np.asarray(out.llh)[sel] - np.asarray(runs["ep"].llh)[None, 1:]
+def _ensemble_position_nees(llh, P_nav, ep):
+    """Per-epoch ensemble-mean position NEES after CONVERGED of runs [R, T] against the truth,
+    with its two-sided 95 % band chi2(3R)/R (Wilson-Hilferty, within 0.1 % of the exact
+    quantiles) and the share of epochs inside it: (avg, R, lo, hi, inside)."""
+    dllh = np.asarray(llh) - np.asarray(ep.llh)[None, 1:]
     dllh[..., 1] = (dllh[..., 1] + np.pi) % (2 * np.pi) - np.pi
-    P = np.asarray(out.P_nav)[sel][..., :3, :3]
+    P = np.asarray(P_nav)[..., :3, :3]
     nees = np.einsum("rti,rtij,rtj->rt", dllh, np.linalg.inv(P), dllh)[:, CONVERGED:]
     avg = nees.mean(axis=0)
     n = nees.shape[0]
-    # chi2(72) 2.5 % and 97.5 % quantiles (Wilson-Hilferty, within 0.1 % of the exact values).
     lo, hi = (_chi2_quantile(3 * n, z) / n for z in (-1.959964, 1.959964))
-    inside = np.mean((avg > lo) & (avg < hi))
+    return avg, n, lo, hi, np.mean((avg > lo) & (avg < hi))
+
+
+def test_position_nees_within_chi_square_band(runs):
+    """Ensemble-averaged position NEES (3 dof, N runs) against chi2(3N)/N, 95 % two-sided."""
+    out, sel = runs["out"], _sel(runs, "full")
+    avg, n, lo, hi, inside = _ensemble_position_nees(np.asarray(out.llh)[sel],
+                                                     np.asarray(out.P_nav)[sel], runs["ep"])
     print(
-        f"position NEES over {n} runs, epochs {CONVERGED}-{nees.shape[1] + CONVERGED}: mean "
+        f"position NEES over {n} runs, epochs {CONVERGED}-{avg.size + CONVERGED}: mean "
         f"{avg.mean():.2f} (3 expected), {100 * inside:.0f} % of epochs in [{lo:.2f}, {hi:.2f}]"
     )
     assert 2.5 < avg.mean() < 3.6
@@ -411,13 +418,8 @@ def test_smoothed_position_nees_within_chi_square_band(runs, smoothed):
     at every epoch."""
     full = smoothed["names"] == "full"
     smo, fwd = smoothed["smo"], smoothed["fwd"]
-    dllh = np.asarray(smo.llh)[full] - np.asarray(runs["ep"].llh)[None, 1:]
-    P = np.asarray(smo.P_nav)[full][..., :3, :3]
-    nees = np.einsum("rti,rtij,rtj->rt", dllh, np.linalg.inv(P), dllh)[:, CONVERGED:]
-    avg = nees.mean(axis=0)
-    n = nees.shape[0]
-    lo, hi = (_chi2_quantile(3 * n, z) / n for z in (-1.959964, 1.959964))
-    inside = np.mean((avg > lo) & (avg < hi))
+    avg, n, lo, hi, inside = _ensemble_position_nees(np.asarray(smo.llh)[full],
+                                                     np.asarray(smo.P_nav)[full], runs["ep"])
     print(f"smoothed position NEES over {n} runs: mean {avg.mean():.2f}, {100 * inside:.0f} % "
           f"of epochs in [{lo:.2f}, {hi:.2f}]")
     assert lo < avg.mean() < hi
