@@ -23,9 +23,10 @@ initial covariance (so the first minutes are under-dispersed by construction and
   the ANIS is biased low by the gates. Tight systems: the tight filter's; the cascade: its loose
   filter's (position / velocity fixes).
 
-With ``--smooth`` every cell with a smoother (not the cascade) also reports the RTS-smoothed
-solution's position and velocity ANEES over the same epochs (``anees_pos_smoothed``,
-``anees_vel_smoothed``; same band), from ``FilterOps.smooth`` over the whole drive.
+With ``--smooth`` every cell also reports the RTS-smoothed solution's position and velocity ANEES
+over the same epochs (``anees_pos_smoothed``, ``anees_vel_smoothed``; same band), from
+``FilterOps.smooth`` over the whole drive (the cascade: its LC filter smoothed over the forward
+PPP fixes).
 
 The last line printed is JSON ``{"<mode>/<system>": {"anees_pos": .., "anees_vel": ..,
 "anis": .., "dof": 3, "runs": N, "lo": .., "hi": .., "nis_lo": .., "nis_hi": ..}, ...}``.

@@ -8,6 +8,8 @@ import os
 import sys
 from pathlib import Path
 
+from jaxnav.apps import existing_file
+
 #: The built-in demo study: S000's four PPP/RISS modes, 60 s outages with 0-3 satellites kept
 #: (and no outage), on a 15-minute simulated drive with a Crossbow-class RISS.
 DEMO_STUDY = {
@@ -48,6 +50,10 @@ def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool, force: bo
     try:  # the folder's state (existing result, other study, damaged files) is checked first
         result = sweep.run_sweep(cfg, factory, out, resume=resume, overwrite=overwrite,
                                  force=force, workers=workers, client=client)
+    except KeyboardInterrupt:
+        print(f"jaxnav: interrupted; the chunks finished so far are kept in {out} (run the same "
+              "command with --resume to continue)", file=sys.stderr)
+        return 2
     except (FileExistsError, sweep.StoreError) as e:
         text = str(e).replace("overwrite=True", "--overwrite").replace("resume=True", "--resume")
         print(f"jaxnav: {text}", file=sys.stderr)
@@ -200,7 +206,7 @@ def main(argv=None) -> int:
     p.set_defaults(func=_demo)
 
     p = sub.add_parser("sweep", help="run a study defined in a TOML file")
-    p.add_argument("config", help="study TOML (see jaxnav/study/config.py)")
+    p.add_argument("config", type=existing_file, help="study TOML (see jaxnav/study/config.py)")
     p.add_argument("--out", help="output folder (required unless --check)")
     p.add_argument("--resume", action="store_true", help="reuse completed chunks in --out")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result")
@@ -228,12 +234,17 @@ def main(argv=None) -> int:
         p.set_defaults(func=_delegate(name))
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv and argv[0] in ("ppp", "lc", "ins", "tune"):  # their parsers take the rest
-        return importlib.import_module(f"jaxnav.apps.{argv[0]}").main(argv[1:])
-    args = parser.parse_args(argv)
-    if getattr(args, "resume", False) and getattr(args, "overwrite", False):
-        parser.error("--resume reuses what --out holds and --overwrite discards it: pass one")
-    return args.func(args)
+    try:
+        if argv and argv[0] in ("ppp", "lc", "ins", "tune"):  # their parsers take the rest
+            return importlib.import_module(f"jaxnav.apps.{argv[0]}").main(argv[1:])
+        args = parser.parse_args(argv)
+        if getattr(args, "resume", False) and getattr(args, "overwrite", False):
+            parser.error("--resume reuses what --out holds and --overwrite discards it: pass one")
+        return args.func(args)
+    except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback from inside compilation
+        print("jaxnav: interrupted; outputs are written only when a run completes",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

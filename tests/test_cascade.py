@@ -171,6 +171,30 @@ def test_run_sweep_with_the_lc_system(tmp_path, runs):
     np.testing.assert_allclose(got, float(ref.max_2d_m), rtol=1e-7)
 
 
+def test_smoothed_cascade_bridges_the_outage_and_is_the_loose_smoother_of_its_fixes(runs):
+    """``cascade.run_smoother``: its LC part is ``loose.run_smoother`` over the forward PPP fixes
+    (to rounding), its covariance never exceeds the forward one, and a 0-satellite 30-s outage
+    in motion is bridged better than by the forward filter (the smoother sees both ends)."""
+    _, prob, _, _ = runs
+    cf, c0, inp = prob.tf, prob.carry0, prob.inputs
+    mask = ot.keep_mask(prob.elevation, prob.available, ot.Outage(OUT_START, OUT_LEN, 0))
+    inp = inp._replace(gnss=inp.gnss._replace(keep=inp.gnss.keep & mask))
+    fwd, smo = jax.jit(cascade.run_smoother)(cf, c0, inp)
+    _, lc_smo = jax.jit(loose.run_smoother)(cf.lc, c0.lc, loose.epoch_inputs(inp.imu, fwd.fix))
+    d = np.abs(np.asarray(mt.enu_errors(lc_smo.llh, smo.lc.llh)))
+    assert d.max() < 1e-6
+    # the PPP part and the fixes are the forward pass's
+    np.testing.assert_array_equal(np.asarray(smo.ppp.llh), np.asarray(fwd.ppp.llh))
+    P_f, P_s = np.asarray(fwd.lc.P_nav), np.asarray(smo.lc.P_nav)
+    eig_gap = np.linalg.eigvalsh(P_f - P_s)  # P+ - P^s positive semi-definite
+    assert eig_gap.min() >= -1e-9 * np.abs(P_f).max()
+    win = slice(OUT_START, OUT_START + OUT_LEN)
+    h_f = _h_err(fwd.lc.llh[win], prob.truth.llh[win]).max()
+    h_s = _h_err(smo.lc.llh[win], prob.truth.llh[win]).max()
+    print(f"30-s outage, max 2D: forward {h_f:.2f} m, smoothed {h_s:.2f} m")
+    assert h_s < h_f
+
+
 # ---- the tight filter's optional NHC update (used by seed 003's TC+NHC) -----------------------
 def test_tight_nhc_update_off_by_default_and_reduces_lateral_velocity(factory):
     """``TightFilter.nhc_sigma_m_s`` defaults to None (the step is the unchanged one: the same

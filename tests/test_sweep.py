@@ -873,7 +873,7 @@ def test_smoothed_metrics_do_not_depend_on_the_other_durations(tmp_path):
 
 
 def test_smooth_needs_a_filter_with_a_smoother(tmp_path):
-    """A group whose FilterOps has no smoother (the PPP -> LC cascade) is refused before any
+    """A group whose FilterOps has no smoother is refused before any
     work, naming the key."""
 
     class NoSmoother(ToyFactory):

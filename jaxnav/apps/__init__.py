@@ -2,12 +2,25 @@
 
 from __future__ import annotations
 
+import argparse
+import os
 import sys
 
 from jaxnav.io.errors import InputError
 
 #: The errors a command reports as one line with exit code 2 (bad input, not a bug).
 INPUT_ERRORS = (InputError, ValueError, FileNotFoundError, FileExistsError)
+
+
+def existing_file(text: str) -> str:
+    """argparse ``type`` of an input-file option: the path unchanged if it names a readable
+    file, else an argparse error naming the option (exit code 2 before any work starts)."""
+    if not os.path.isfile(text):
+        why = "is a folder, expected a file" if os.path.isdir(text) else "no such file"
+        raise argparse.ArgumentTypeError(f"{text}: {why}")
+    if not os.access(text, os.R_OK):
+        raise argparse.ArgumentTypeError(f"{text}: not readable (permission denied)")
+    return text
 
 
 #: ``--solution`` values of the recorded-data commands: the forward filter, or "combined" =

@@ -41,7 +41,7 @@ import jax
 import numpy as np
 
 import jaxnav
-from jaxnav.apps import car_config, run_command
+from jaxnav.apps import car_config, existing_file, run_command
 from jaxnav.apps import tc_recorded as tc
 from jaxnav.apps.lc_filter import antenna_track
 from jaxnav.core import schema
@@ -149,9 +149,10 @@ def schedule(cfg: InsConfig, outages_file: str | None) -> ot.Schedule | None:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("--config", required=True, help="run configuration TOML")
+    p.add_argument("--config", required=True, type=existing_file, help="run configuration TOML")
     p.add_argument("--out", required=True, help="output .pos (INS at the antenna)")
-    p.add_argument("--outages", help="schedule id,start_s,length_s[,satellites_kept] "
+    p.add_argument("--outages", type=existing_file,
+                   help="schedule id,start_s,length_s[,satellites_kept] "
                    "(start after the first IMU sample); default: the [outages] grid")
     p.add_argument("--smooth", action="store_true",
                    help="forward filter + RTS smoother (RTKPOST's combined solution)")
@@ -197,7 +198,7 @@ def _loose(cfg: InsConfig, args, sched) -> int:
 def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int:
     t0 = time.perf_counter()
     opts = cfg.tight
-    rec = tc.load_recording(cfg.car, opts, cfg.paths)
+    rec = tc.load_recording(cfg.car, opts, cfg.paths, sched)
     plan = tc.plan_outages(rec, sched) if sched is not None else tc.plan_outages(
         rec, ot.Schedule((), np.zeros(0), np.zeros(0), np.zeros(0, np.int64)))
     keeps = tc.keep_masks(rec, plan)

@@ -77,7 +77,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
-from jaxnav.apps import add_solution_options, run_command
+from jaxnav.apps import add_solution_options, existing_file, run_command
 from jaxnav.apps.car_config import (  # noqa: F401  (re-exported: the command's public names)
     SWEEP_MODES,
     UG_M_S2,
@@ -138,12 +138,16 @@ def sigma_ratios(err_enu: np.ndarray, sd_neu_m: np.ndarray) -> np.ndarray:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("--imu", required=True, help="IMU CSV log (acc [g], gyro, tick [ms])")
-    p.add_argument("--imu-tag", help="RTKLIB time-tag file of the IMU log (default IMU.tag)")
-    p.add_argument("--gnss", required=True, help="RTKLIB .pos with velocities (aiding + reference)")
-    p.add_argument("--config", required=True, help="car configuration TOML")
+    p.add_argument("--imu", required=True, type=existing_file,
+                   help="IMU CSV log (acc [g], gyro, tick [ms])")
+    p.add_argument("--imu-tag", type=existing_file,
+                   help="RTKLIB time-tag file of the IMU log (default IMU.tag)")
+    p.add_argument("--gnss", required=True, type=existing_file,
+                   help="RTKLIB .pos with velocities (aiding + reference)")
+    p.add_argument("--config", required=True, type=existing_file, help="car configuration TOML")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--outages", help="schedule file id,start_s,length_s (start after 1st IMU)")
+    g.add_argument("--outages", type=existing_file,
+                   help="schedule file id,start_s,length_s (start after 1st IMU)")
     g.add_argument("--outage-grid", type=parse_grid, metavar="START:STEP:LENGTH",
                    help="outages START, START+STEP, ... of LENGTH seconds")
     p.add_argument("--duration", type=float, help="process only the first DURATION s of the log")

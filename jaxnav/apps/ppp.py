@@ -50,7 +50,7 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
-from jaxnav.apps import add_solution_options
+from jaxnav.apps import add_solution_options, existing_file
 from jaxnav.core.gpstime import gps_seconds_to_datetime64
 from jaxnav.filter import ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
@@ -90,11 +90,15 @@ def _parse_xyz(text: str) -> np.ndarray:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="jaxnav ppp", description=__doc__.split("\n\n")[0])
-    p.add_argument("--obs", required=True, help="RINEX 2/3 observations (.rnx/.crx, .gz)")
-    p.add_argument("--nav", help="RINEX 3 navigation file (broadcast orbits, Klobuchar, TGD)")
-    p.add_argument("--sp3", nargs="+", default=[], help="SP3 orbit file(s), joined")
-    p.add_argument("--clk", help="RINEX clock file (precise satellite clocks)")
-    p.add_argument("--ionex", help="IONEX maps for the single-frequency ionosphere")
+    p.add_argument("--obs", required=True, type=existing_file,
+                   help="RINEX 2/3 observations (.rnx/.crx, .gz)")
+    p.add_argument("--nav", type=existing_file,
+                   help="RINEX 3 navigation file (broadcast orbits, Klobuchar, TGD)")
+    p.add_argument("--sp3", nargs="+", default=[], type=existing_file,
+                   help="SP3 orbit file(s), joined")
+    p.add_argument("--clk", type=existing_file, help="RINEX clock file (precise satellite clocks)")
+    p.add_argument("--ionex", type=existing_file,
+                   help="IONEX maps for the single-frequency ionosphere")
     p.add_argument("--mode", choices=("static", "kinematic"), required=True)
     p.add_argument("--freq", choices=("single", "dual"), required=True)
     p.add_argument("--phase", action="store_true",
@@ -124,7 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="use one-sided SP3 interpolation at the table ends (else no orbit there)",
     )
     p1c1 = p.add_mutually_exclusive_group()
-    p1c1.add_argument("--dcb", help="CODE P1-C1 DCB file: levels the C/A code of --freq single "
+    p1c1.add_argument("--dcb", type=existing_file,
+                      help="CODE P1-C1 DCB file: levels the C/A code of --freq single "
                       "to P1, as the clocks expect")
     p1c1.add_argument("--p1c1-from-obs", action="store_true",
                       help="measure the satellites' P1-C1 from the file's own C1W - C1C")

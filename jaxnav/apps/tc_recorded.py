@@ -127,8 +127,23 @@ def _enu_velocity(prep, dv) -> np.ndarray:
     return np.einsum("tji,tj->ti", C, np.asarray(dv.vel_ecef))  # C_l_e^T v_e
 
 
-def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict) -> Recording:
-    """Read the UBX log, its ephemerides, the IMU log and the reference; find the start."""
+def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict,
+                   sched: ot.Schedule | None = None) -> Recording:
+    """Read the IMU log, the UBX log, its ephemerides and the reference; find the start.
+
+    The IMU log is read first (a fraction of a second) so that outages of ``sched`` past its
+    end are refused before the UBX log is decoded (``plan_outages`` checks them exactly)."""
+    imu_log = imu_io.read_imu_csv(paths["imu"], paths.get("imu_tag"),
+                                  gyro_unit=cfg.imu_gyro_unit, accel_unit=cfg.imu_accel_unit,
+                                  time_offset_s=cfg.imu_time_offset_s)
+    span_s = float(imu_log.time_gps_s[-1] - imu_log.time_gps_s[0])
+    if sched is not None:
+        for oid, start, length in zip(sched.id, sched.start_s, sched.length_s, strict=True):
+            if start + length > span_s:
+                raise InputError(f"outage {oid!r} ({start:g} s + {length:g} s) ends after the "
+                                 f"IMU log ({span_s:.2f} s long)", file=paths["imu"],
+                                 expected="outages inside the log, start_s after its first "
+                                 "sample")
     letters = tuple(LETTERS[c] for c in opts.constellations)
     log = read_ubx(paths["ubx"], systems="".join(letters))
     eph, nav_report = ephemeris_from_sfrbx(log.subframes)
@@ -170,9 +185,6 @@ def load_recording(cfg: CarConfig, opts: TightOptions, paths: dict) -> Recording
     vel_enu = _enu_velocity(prep, dv)
     speed = np.where(np.asarray(dv.ok) & prep.spp_ok, np.hypot(vel_enu[:, 0], vel_enu[:, 1]), 0)
 
-    imu_log = imu_io.read_imu_csv(paths["imu"], paths.get("imu_tag"),
-                                  gyro_unit=cfg.imu_gyro_unit, accel_unit=cfg.imu_accel_unit,
-                                  time_offset_s=cfg.imu_time_offset_s)
     rpy = np.add(cfg.imu_mounting_rpy_deg, cfg.imu_misalignment_rpy_deg)
     inc = imu_io.imu_increments(imu_log, imu_io.sensor_to_body_dcm(*rpy))
     t_imu0 = float(imu_log.time_gps_s[0])

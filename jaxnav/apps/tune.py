@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxnav
-from jaxnav.apps import run_command
+from jaxnav.apps import existing_file, run_command
 from jaxnav.apps.car_config import CarConfig, CarConfigError, load_config
 from jaxnav.apps.lc_drive import Drive, load_drive
 from jaxnav.apps.lc_filter import (
@@ -204,10 +204,12 @@ def tuned_toml(text: str, cfg: CarConfig, res: tn.FitResult, slots, source: str)
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("--config", required=True, help="car configuration TOML (jaxnav lc)")
-    p.add_argument("--imu", required=True, help="IMU CSV log")
-    p.add_argument("--imu-tag", help="RTKLIB time-tag file of the IMU log (default IMU.tag)")
-    p.add_argument("--gnss", required=True, help="RTKLIB .pos track (aiding)")
+    p.add_argument("--config", required=True, type=existing_file,
+                   help="car configuration TOML (jaxnav lc)")
+    p.add_argument("--imu", required=True, type=existing_file, help="IMU CSV log")
+    p.add_argument("--imu-tag", type=existing_file,
+                   help="RTKLIB time-tag file of the IMU log (default IMU.tag)")
+    p.add_argument("--gnss", required=True, type=existing_file, help="RTKLIB .pos track (aiding)")
     p.add_argument("--params", required=True,
                    help=f"comma-separated [section].key to fit, of: {', '.join(TUNABLE)}")
     p.add_argument("--out", required=True, help="tuned configuration TOML to write")

@@ -367,8 +367,7 @@ def check_study(cfg: StudyConfig, factory, *, force: bool = False, workers: int 
                 if group_ops(factory, mode, system).smooth is None:
                     raise ConfigError(
                         f"study.smooth = true: the {mode!r} / {system!r} filter has no RTS "
-                        "smoother (the PPP -> LC cascade); expected smooth = false or modes "
-                        "with a smoother"
+                        "smoother; expected smooth = false or filters with a smoother"
                     )
     _check_memory(cfg, factory, rows=1, chunk_epochs=0, force=force)  # the drive alone
     plan = make_plan(cfg, factory.timeline(cfg))
