@@ -53,6 +53,7 @@ def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool, force: bo
     except KeyboardInterrupt:
         print(f"jaxnav: interrupted; the chunks finished so far are kept in {out} (run the same "
               "command with --resume to continue)", file=sys.stderr)
+        _interrupted.append(True)
         return 2
     except (FileExistsError, sweep.StoreError) as e:
         text = str(e).replace("overwrite=True", "--overwrite").replace("resume=True", "--resume")
@@ -244,8 +245,26 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback from inside compilation
         print("jaxnav: interrupted; outputs are written only when a run completes",
               file=sys.stderr)
+        _interrupted.append(True)
         return 2
 
 
+#: Set when Ctrl-C ended the command (``entry``).
+_interrupted: list = []
+
+
+def entry() -> None:
+    """The console script: ``main``, then exit with its code. After Ctrl-C the process leaves
+    with ``os._exit``: an XLA compilation interrupted in another thread crashes the interpreter's
+    normal shutdown (measured: SIGSEGV after the message), and nothing is left to clean up (the
+    sweep store writes each chunk atomically)."""
+    rc = main()
+    if _interrupted:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc)
+    sys.exit(rc)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -219,13 +219,95 @@ def test_demo_table_matches_its_golden(tmp_path, goldens):
 ])
 def test_ppp_bad_options_exit_2_before_reading(extra, message, capsys, tmp_path):
     """``jaxnav ppp``: a missing product or P1-C1 choice is one line and exit 2, found before
-    any file is read (the observation file here does not exist)."""
+    any file is read (the observation file here is empty)."""
     from jaxnav.apps import ppp as app
 
-    args = ["--obs", str(tmp_path / "none.rnx"), "--mode", "static", "--out",
+    for name in ("empty.rnx", "empty.nav", "x.i", "x.sp3"):  # present, so argparse accepts them
+        (tmp_path / name).write_text("")
+    extra = [str(tmp_path / a) if a in ("x.i", "x.sp3") else a for a in extra]
+    args = ["--obs", str(tmp_path / "empty.rnx"), "--mode", "static", "--out",
             str(tmp_path / "o.pos"), *extra]
     if "--nav" not in extra and "--sp3" not in extra:
-        args += ["--nav", str(tmp_path / "none.nav")]
+        args += ["--nav", str(tmp_path / "empty.nav")]
     assert app.main(args) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
+
+
+# ---- issue 22: every user error is one line and exit code 2, before any long work --------------
+def _one_line_exit_2(capsys, argv, *words):
+    """Run ``jaxnav ARGV``: exit code 2 (returned or from argparse), one line on stderr holding
+    every word, no traceback."""
+    try:
+        rc = cli.main(argv)
+    except SystemExit as e:
+        rc = e.code
+    err = capsys.readouterr().err.strip()
+    assert rc == 2, (rc, err)
+    assert "Traceback" not in err and all(w in err for w in words), err
+    assert err.splitlines()[-1].startswith("jaxnav"), err
+    return err
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["sweep", "{missing}", "--check"], "argument config"),
+    (["ppp", "--obs", "{present}", "--nav", "{missing}", "--mode", "static", "--freq", "dual",
+      "--out", "o.pos"], "argument --nav"),
+    (["ppp", "--obs", "{missing}", "--mode", "static", "--freq", "dual", "--out", "o.pos"],
+     "argument --obs"),
+    (["lc", "--imu", "{present}", "--gnss", "{missing}", "--config", "{present}", "--out",
+      "o.pos"], "argument --gnss"),
+    (["ins", "--config", "{missing}", "--out", "o.pos"], "argument --config"),
+    (["tune", "--config", "{present}", "--imu", "{missing}", "--gnss", "{present}",
+      "--params", "x", "--out", "o.toml"], "argument --imu"),
+])
+def test_a_missing_input_file_names_its_option(tmp_path, capsys, argv, option):
+    """A missing input file is refused by the argument parser, naming the option, before any
+    other input is read (``jaxnav ppp --nav`` was found after 21 s of RINEX reading)."""
+    present = tmp_path / "present.txt"
+    present.write_text("")
+    missing = tmp_path / "missing.toml"
+    argv = [a.format(present=present, missing=missing) for a in argv]
+    _one_line_exit_2(capsys, argv, option, f"{missing}: no such file")
+
+
+def test_ctrl_c_during_a_sweep_is_one_line_naming_resume(tmp_path, capsys, monkeypatch):
+    """Ctrl-C (KeyboardInterrupt from anywhere inside the run, e.g. compilation) ends the
+    command with one line that says how to continue, not a traceback."""
+    from jaxnav.study import sweep
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "run_sweep", interrupted)
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY)
+    _one_line_exit_2(capsys, ["sweep", str(cfg), "--out", str(tmp_path / "o")], "interrupted",
+                     "--resume")
+
+
+@pytest.mark.heavy
+def test_ctrl_c_in_a_real_sweep_subprocess(tmp_path):
+    """SIGINT sent to a running ``jaxnav sweep`` (while it compiles or runs): exit code 2, one
+    line, no traceback; the folder then resumes (``--resume``) to a complete result."""
+    import signal
+    import time
+
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY)
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "jaxnav.cli", "sweep", str(cfg), "--out", str(out),
+           "--workers", "1"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)  # the output folder exists once the checks passed and work started
+    assert proc.poll() is None, proc.communicate()
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2, err
+    assert "Traceback" not in err and "interrupted" in err and "--resume" in err, err
+    assert len([ln for ln in err.splitlines() if ln.startswith("jaxnav")]) == 1, err
+    assert cli.main(["sweep", str(cfg), "--out", str(out), "--resume", "--workers", "1"]) == 0
+    assert (out / "results.nc").is_file()

@@ -91,6 +91,25 @@ def test_an_existing_output_is_not_overwritten(tmp_path):
     assert out.read_text() == "keep me"
 
 
+def test_an_outage_past_the_log_is_refused_before_the_ubx_is_decoded(tmp_path, monkeypatch):
+    """An outage after the IMU log's end is one line and exit 2, found from the IMU log alone
+    (0.1 s) before the UBX log is decoded (issue 22: it was found after 17 s)."""
+    _need_data()
+    from jaxnav.apps import tc_recorded
+
+    def no_ubx(*a, **k):
+        raise AssertionError("the UBX log was decoded before the outage check")
+
+    monkeypatch.setattr(tc_recorded, "read_ubx", no_ubx)
+    sched = tmp_path / "out.csv"
+    sched.write_text("id,start_s,length_s\nlate,130,15\n")  # the log is 134.25 s long
+    code, _, err = _run(["--config", str(_config(tmp_path)), "--outages", str(sched), "--out",
+                         str(tmp_path / "o.pos")])
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err
+    assert "outage 'late' (130 s + 15 s) ends after the IMU log (134.25 s long)" in lines[0]
+
+
 # ---- the walk ---------------------------------------------------------------------------------
 def _spp_minus_pvt(log, eph, letters):
     opt = pm.PrepareOptions(freq="single", systems=letters, iono="klobuchar", ignore_p1c1=True)

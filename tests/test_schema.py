@@ -52,3 +52,17 @@ def test_conversions_and_required_keys():
     assert isinstance(got["v"][0], float) and isinstance(got["n"], int)
     with pytest.raises(schema.SchemaError, match=r"missing key s.v \(why\)"):
         schema.check_section("s", {"n": 1}, rules, required=("v",), note="why")
+
+
+def test_the_config_module_docstring_example_is_a_valid_study(tmp_path):
+    """The example in ``jaxnav.study.config``'s docstring passes every pre-run check of
+    ``jaxnav sweep --check`` (its ``[scenario]`` once named a key no factory knows)."""
+    import textwrap
+
+    from jaxnav import cli
+
+    example = sc.__doc__.split("Example::\n", 1)[1].split("\n\nEvery error", 1)[0]
+    path = tmp_path / "example.toml"
+    path.write_text(textwrap.dedent(example))
+    assert "[scenario]" in path.read_text()
+    assert cli.main(["sweep", str(path), "--check"]) == 0

@@ -34,8 +34,9 @@ and the engine's chunk size. Example::
     pre_s = 10
     min_distance_m = 1.0
 
-    [scenario]                         # free-form, passed to the scenario factory
-    drive = "kingston"
+    [scenario]                         # the scenario factory's table (study.factory)
+    duration_s = 900                   # simulated drive length
+    drive_style = "mixed"              # mixed | urban | suburban | highway | circuit | airborne
 
 Every error names the key, the offending value and what is allowed (``ConfigError``). Values
 in seconds are converted to epochs by the engine, which checks they are whole epochs.
