@@ -1,4 +1,4 @@
-"""``jaxnav`` command line: demo, sweep, ppp, lc, ins, list."""
+"""``jaxnav`` command line: demo, sweep, init, list, ppp, lc, ins, tune."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ DEMO_STUDY = {
         "seed": 0,
         "recovery_s": 30,
         "chunk_size": 64,
-        "max_traces": 10,
+        "max_traces": 105,  # every run (7 placements x 3 realizations) at 5 levels
     },
     "placement": {"kind": "grid", "convergence_s": 300, "spacing_s": 75},
     "scenario": {"duration_s": 900},
@@ -69,14 +69,15 @@ def _run_study(cfg, factory, out: Path, resume: bool, overwrite: bool, force: bo
     for solution, view in report.solution_views(result.dataset):
         if solution is not None:
             print(f"\n## {solution}\n")
-        print(report.markdown_by_satellites(report.table_by_satellites(view)))
+        print(report.markdown_by_satellites(report.table_by_satellites(view),
+                                            pooled=report.pooled_text(view)))
     stats = result.stats
     print(
         f"\n{stats['scenarios']} scenarios in {stats['wall_s']:.1f} s "
         f"(compile {stats['compile_full_s'] + stats['compile_eval_s']:.1f} s); "
         f"results: {result.path}"
     )
-    for p in paths:
+    for p in paths.values():
         print(f"  wrote {p}")
     return 0
 
@@ -137,6 +138,23 @@ def _check_study(cfg, factory, path, force: bool, workers: int | str) -> int:
     return 0
 
 
+def _init(args) -> int:
+    """``jaxnav init FILE``: write the commented study template (every key, its default)."""
+    from jaxnav.study.template import study_template
+
+    path = Path(args.file)
+    if path.exists() and not args.overwrite:
+        print(f"jaxnav init: {path} exists; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    if not path.parent.is_dir():
+        print(f"jaxnav init: {path.parent} is not a folder", file=sys.stderr)
+        return 2
+    path.write_text(study_template())
+    print(f"wrote {path}: check it with `jaxnav sweep {path} --check`, run it with "
+          f"`jaxnav sweep {path} --out DIR`")
+    return 0
+
+
 def _first_line(obj) -> str:
     return (obj.__doc__ or "").strip().splitlines()[0] if obj.__doc__ else ""
 
@@ -154,6 +172,13 @@ def _list(args) -> int:
 
         for name in SimFactory.systems:
             print(name)
+    elif args.what == "drives":
+        from jaxnav.study.factory import DRIVE_STYLES
+
+        for name, text in DRIVE_STYLES.items():
+            print(f"{name:10s} {text}")
+        print("(simulated: [scenario] drive_style; a recorded drive: [scenario] source = "
+              "\"replay\", configs/esbc_replay.toml)")
     else:
         from jaxnav.sim import sensors
 
@@ -196,7 +221,10 @@ def _parallel_options(p):
 
 
 def main(argv=None) -> int:
+    from jaxnav import __version__
+
     parser = argparse.ArgumentParser(prog="jaxnav", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"jaxnav {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("demo", help="outage sweep on a built-in simulated drive (no downloads)")
@@ -218,8 +246,15 @@ def main(argv=None) -> int:
     _parallel_options(p)
     p.set_defaults(func=_sweep)
 
-    p = sub.add_parser("list", help="what the registries hold: PPP modes, systems, presets")
-    p.add_argument("what", choices=("modes", "systems", "presets"))
+    p = sub.add_parser("init", help="write a study TOML template with every key, its default "
+                                    "and its meaning")
+    p.add_argument("file", help="the TOML file to write (e.g. study.toml)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    p.set_defaults(func=_init)
+
+    p = sub.add_parser("list", help="what the registries hold: PPP modes, navigation systems, "
+                                    "sensor presets, simulated drives")
+    p.add_argument("what", choices=("modes", "systems", "presets", "drives"))
     p.set_defaults(func=_list)
 
     for name, text in (

@@ -193,9 +193,18 @@ def test_list_prints_what_the_registries_hold(capsys):
         assert cli.main(["list", what]) == 0
         lines = capsys.readouterr().out.splitlines()
         assert [ln.split()[1 if what == "presets" else 0] for ln in lines] == list(names), what
+    from jaxnav.study.factory import DRIVE_STYLES, SCENARIO_SCHEMA
+
+    assert cli.main(["list", "drives"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln.split()[0] for ln in lines[:-1]] == list(DRIVE_STYLES)
+    assert all(SCENARIO_SCHEMA["drive_style"](name) == name for name in DRIVE_STYLES)
     with pytest.raises(SystemExit) as e:
         cli.main(["list", "grades"])
     assert e.value.code == 2
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.startswith("jaxnav 0.")
 
 
 @pytest.mark.full
@@ -311,3 +320,33 @@ def test_ctrl_c_in_a_real_sweep_subprocess(tmp_path):
     assert len([ln for ln in err.splitlines() if ln.startswith("jaxnav")]) == 1, err
     assert cli.main(["sweep", str(cfg), "--out", str(out), "--resume", "--workers", "1"]) == 0
     assert (out / "results.nc").is_file()
+
+
+def test_init_writes_a_valid_template_with_every_key_and_its_default(tmp_path, capsys):
+    """``jaxnav init``: the template passes ``--check``, names every key of every section
+    (those of other placement kinds commented out), and its values are the defaults: the same
+    study and simulated drive as a TOML without them."""
+    import tomllib
+
+    from jaxnav.study import config as sc
+    from jaxnav.study import factory as fc
+
+    path = tmp_path / "study.toml"
+    assert cli.main(["init", str(path)]) == 0
+    text = path.read_text()
+    for section, keys in (("study", sc._STUDY_KEYS), ("placement", sc._PLACEMENT_SCHEMA),
+                          ("metrics", sc._METRICS_SCHEMA), ("scenario", fc.SCENARIO_SCHEMA)):
+        body = text.split(f"[{section}]", 1)[1].split("\n[", 1)[0]
+        for key in keys:
+            assert f"\n{key} = " in body or f"\n# {key} = " in body, (section, key)
+    capsys.readouterr()
+    assert cli.main(["sweep", str(path), "--check"]) == 0
+    data = tomllib.loads(text)
+    full = sc.from_dict(data)
+    bare = sc.from_dict({"study": {k: data["study"][k] for k in ("modes", "systems")}})
+    assert full.replace(scenario=()) == bare
+    a, b = fc.SimFactory(data["scenario"]), fc.SimFactory({})
+    assert a.cfg == b.cfg and (a.ins_grade, a.bssd, a.lc_fix_correlated) == (
+        b.ins_grade, b.bssd, b.lc_fix_correlated)
+    assert cli.main(["init", str(path)]) == 2  # no silent overwrite
+    assert "exists; pass --overwrite" in capsys.readouterr().err

@@ -141,6 +141,91 @@ def test_plots_are_written(tmp_path):
     assert not (tmp_path / "none.png").exists()
 
 
+def _with_traces(ds, n_runs=7, seed=1):
+    """Replace the traces by n_runs runs per level of sf_code / riss with known errors:
+    run i's 2D error at level k is (k + 1) * (i + 1) metres at every epoch."""
+    ds = ds.drop_vars([v for v in ds.variables if str(v).startswith("trace")])
+    t = np.arange(-5.0, 40.0)
+    levels = [0, 1, sw.ALL]
+    kept = np.repeat(levels, n_runs)
+    run = np.tile(np.arange(n_runs), len(levels))
+    scale = np.where(kept == sw.ALL, 0.1, kept + 1.0) * (run + 1.0)
+    err = np.zeros((kept.size, t.size, 3))
+    err[:, :, 0] = scale[:, None] * 0.6
+    err[:, :, 1] = scale[:, None] * 0.8  # |(0.6, 0.8)| = 1
+    n = kept.size
+    ds["trace_err_enu_m"] = (("trace", "trace_epoch", "enu"), err)
+    return ds.assign_coords(
+        trace_time_s=(("trace", "trace_epoch"), np.broadcast_to(t, (n, t.size))),
+        trace_mode=("trace", ["sf_code"] * n), trace_system=("trace", ["riss"] * n),
+        trace_satellites_kept=("trace", kept), trace_outage_s=("trace", [30.0] * n),
+        trace_ramp_s=("trace", [0.0] * n),
+    )
+
+
+def test_error_growth_is_the_median_and_band_over_the_traced_runs(tmp_path):
+    """Each curve is the median of its level's runs with the 10th / 90th percentiles (not one
+    run), and the panel's title says how many runs a curve holds."""
+    ds = _with_traces(synthetic(traces=False), n_runs=7)
+    longest, ramp, curves = rp.error_growth_curves(ds, "riss", "sf_code")
+    assert (longest, ramp) == (30.0, 0.0) and list(curves) == [0, 1, sw.ALL]
+    runs = np.arange(1.0, 8.0)
+    for k, (t, med, lo, hi, n) in curves.items():
+        scale = (0.1 if k == sw.ALL else k + 1.0) * runs
+        assert n == 7 and t[0] == -5.0
+        np.testing.assert_allclose(med, np.median(scale), rtol=1e-12)
+        np.testing.assert_allclose(lo, np.percentile(scale, 10), rtol=1e-12)
+        np.testing.assert_allclose(hi, np.percentile(scale, 90), rtol=1e-12)
+    path = rp.plot_error_growth(ds, tmp_path / "g.png")
+    assert _is_png(path)
+
+
+def test_pooled_cells_and_the_summary_table(tmp_path):
+    """table.md says what a cell pools, and its summary table holds % of distance, the
+    re-convergence median and the NEES verdict: chi2(3) draws are consistent, ten times them
+    over-confident (bold), a tenth under-confident (chi2(3 n) / n band)."""
+    from scipy.stats import chi2
+
+    ds = synthetic()
+    rng = np.random.default_rng(5)
+    shape = ds.max_2d_m.shape
+    nees = rng.chisquare(3, shape)
+    nees[0] *= 10.0  # sf_code over-confident
+    nees[2] *= 0.1  # float_ppp under-confident
+    reconv = rng.uniform(0, 20, shape)
+    ok = rng.uniform(size=shape) > 0.3
+    ds = ds.assign(nees_pos=(sw.DIMS, nees), pct_of_distance=(sw.DIMS, ds.max_2d_m.values * 2),
+                   reconv_s=(sw.DIMS, np.where(ok, reconv, np.nan)),
+                   reconverged=(sw.DIMS, ok))
+    assert rp.pooled_text(ds) == "5 placements x 3 realizations x 2 ramps"
+    df = rp.table_summary(ds)
+    assert len(df) == 2 * len(DURATIONS) * len(KEPT) * len(MODES)
+    r = df[(df.system == "ins") & (df.duration_s == 30.0) & (df.satellites_kept == 1)]
+    sel = dict(system="ins", duration=30.0, satellites_kept=1)
+    for mode, verdict in (("sf_code", rp.OVER), ("df_code", rp.CONSISTENT),
+                          ("float_ppp", rp.UNDER)):
+        row = r[r["mode"] == mode].iloc[0]
+        v = ds.nees_pos.sel(mode=mode, **sel).values.ravel()
+        assert row.nees_pos_mean == pytest.approx(v.mean(), rel=1e-12)
+        assert row.nees_hi == pytest.approx(chi2.ppf(0.975, 3 * v.size) / v.size, rel=1e-12)
+        assert row.consistency == verdict, (mode, row.nees_pos_mean, row.nees_lo, row.nees_hi)
+        rc = ds.reconv_s.sel(mode=mode, **sel).values.ravel()
+        assert row.reconv_median_s == pytest.approx(np.nanmedian(rc), rel=1e-12)
+        assert row.reconverged_frac == pytest.approx(np.isfinite(rc).mean(), rel=1e-12)
+        pct = ds.pct_of_distance.sel(mode=mode, **sel).values.ravel()
+        assert row.pct_of_distance_mean == pytest.approx(np.nanmean(pct), rel=1e-12)
+    md = rp.write_tables(ds, tmp_path)["markdown"].read_text()
+    assert "of 30 outages per cell = 5 placements x 3 realizations x 2 ramps" in md
+    assert "### Re-convergence, error per distance and consistency: ins, 30 s outages" in md
+    assert "| sf_code |" in md and "**over-confident**" in md and "| under-confident |" in md
+
+
+def test_one_duration_draws_no_duration_distribution(tmp_path):
+    paths = rp.write_report(synthetic(durations=[30.0]), tmp_path)
+    assert "by_duration" not in paths and not (tmp_path / "dist_by_duration.png").exists()
+    assert _is_png(paths["by_satellites"])
+
+
 # ----------------------------------------------------------------------------------------------
 # End to end with the real tight filter: simulated drive -> sweep -> Dataset -> report
 # ----------------------------------------------------------------------------------------------

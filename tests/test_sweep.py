@@ -301,7 +301,9 @@ def compare_with_brute_force(ds, plan, factory):
         for t in np.flatnonzero(ds.trace_mode.values == mode):
             d = int(np.flatnonzero(plan.duration_s == ds.trace_duration.values[t])[0])
             k = int(np.flatnonzero(plan.n_keep == ds.trace_satellites_kept.values[t])[0])
-            fl = int(np.ravel_multi_index((0, d, k, 0, 0, 0), plan.shape))
+            r = int(np.flatnonzero(plan.seeds == ds.trace_realization.values[t])[0])
+            p = int(ds.trace_placement.values[t])
+            fl = int(np.ravel_multi_index((r, d, k, p, 0, 0), plan.shape))
             lo = int(plan.scenarios([fl])["sel"][0]) - plan.prefix
             eng = ds.trace_err_enu_m.values[t]
             bf = ref[fl][1][lo:lo + eng.shape[0]]
@@ -388,7 +390,7 @@ def test_traces_are_the_scenarios_errors(main_run):
         sc_ = ds.sel(mode=tr.trace_mode.item(), system=tr.trace_system.item(),
                      realization=tr.trace_realization.item(), duration=tr.trace_duration.item(),
                      satellites_kept=tr.trace_satellites_kept.item(), policy="highest",
-                     ramp=0.0).isel(placement=0)
+                     ramp=0.0, placement=tr.trace_placement.item())
         time_s = tr.trace_time_s.values
         err = tr.trace_err_enu_m.values
         L = tr.trace_outage_s.item()
@@ -883,3 +885,23 @@ def test_smooth_needs_a_filter_with_a_smoother(tmp_path):
         sw.run_sweep(toy_config(smooth=True, modes=["toy_a"], realizations=1), NoSmoother(),
                      tmp_path / "x", progress=False)
     assert not (tmp_path / "x").exists()
+
+
+def test_traces_start_with_run_0_then_span_the_runs():
+    """Trace picks: run 0 (realization 0, placement 0) of every duration and level first (the
+    earlier selection, so studies sized for it keep their traces), then the other runs, for
+    the error-growth plot's median and band."""
+    factory = ToyFactory()
+    cfg = toy_config(**MAIN_STUDY)
+    plan = sw.make_plan(cfg, factory.timeline(cfg))
+    n_real, n_dur, n_keep, n_place, _, _ = plan.shape
+    first = n_dur * n_keep
+    small = sw.make_plan(cfg.replace(max_traces=first), factory.timeline(cfg))
+    r, d, k, p, pol, ramp = np.unravel_index(small.trace_flat, plan.shape)
+    assert small.trace_flat.size == first and not r.any() and not p.any()
+    assert sorted(zip(d, k, strict=True)) == [(i, j) for i in range(n_dur) for j in range(n_keep)]
+    big = sw.make_plan(cfg.replace(max_traces=10**6), factory.timeline(cfg))
+    r, d, k, p, pol, ramp = np.unravel_index(big.trace_flat, plan.shape)
+    assert big.trace_flat.size == n_real * n_dur * n_keep * n_place  # every run, policy / ramp 0
+    assert not pol.any() and not ramp.any()
+    assert len(set(zip(r, p, strict=True))) == n_real * n_place

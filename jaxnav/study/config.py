@@ -16,7 +16,7 @@ and the engine's chunk size. Example::
     seed = 0
     recovery_s = 60                    # evaluated after each outage (re-convergence)
     chunk_size = 64                    # scenarios per engine chunk (bounds memory)
-    max_traces = 16                    # per (mode, system): per-epoch error kept for plots
+    max_traces = 100                   # per (mode, system): per-epoch error kept for plots
     metric_window = "core"             # "core" or "with_ramp"
     smooth = false                     # also RTS-smoothed metrics (a "solution" dimension)
 
@@ -112,7 +112,7 @@ class StudyConfig:
     # chosen: 64. Bounds memory; also, chunks of >~108 scenarios stalled jaxlib's batched
     # matrix solve on 2 CPU cores (all threads parked), with jax/jaxlib 0.10.2.
     chunk_size: int = 64
-    max_traces: int = 16  # chosen: enough curves for one error-growth figure per mode
+    max_traces: int = 100  # chosen: 20 runs per curve at 5 levels, for a 10-90 % band
     metric_window: str = "core"
     # Also the RTS-smoothed solution's metrics, beside the forward filter's (a ``solution``
     # dimension of the Dataset: "forward", "smoothed"); jaxnav.study.sweep docstring.

@@ -96,7 +96,17 @@ SYSTEMS = ("riss", "riss9", "ins15", "ins21", *LC_SYSTEMS, *TC_NHC_SYSTEMS, PPP_
 #: for the GIM), rounded up.
 IONO_MODELS = {"klobuchar": (None, 0.3), "gim": (0.25, 0.1)}
 _CONSTELLATIONS = {"gps": signals.SYS_GPS, "glonass": signals.SYS_GLO, "galileo": signals.SYS_GAL}
-_DRIVE_STYLES = ("mixed", "urban", "suburban", "highway", "circuit", "airborne")
+#: Simulated drive styles (``jaxnav.sim.drives``), as ``jaxnav list drives`` describes them.
+DRIVE_STYLES = {
+    "mixed": "urban -> suburban -> highway -> suburban -> urban, 30-100 km/h (default; the "
+             "seeds' Kingston drives)",
+    "urban": "30-60 km/h, stop-and-go at lights, sharp turns of 10-25 m radius",
+    "suburban": "50-80 km/h, intersections, curves and hills",
+    "highway": "80-100 km/h, gentle curves of 0.5-2 km radius",
+    "circuit": "laps of a closed rectangular circuit, left corners",
+    "airborne": "a flight at 45-50 m/s with banked turns, climbs and descents (seed 001)",
+}
+_DRIVE_STYLES = tuple(DRIVE_STYLES)
 #: The [scenario] table of a study on simulated drives (``core/schema.py`` rules).
 SCENARIO_SCHEMA = {
     "drive_seed": schema.whole(0),
@@ -115,6 +125,23 @@ SCENARIO_SCHEMA = {
     "environment": schema.choice(observations.SLIP_ENVIRONMENTS, "cycle-slip rates"),
     "slip_flags": schema.choice(scenario.SLIP_FLAGS),
     "lc_fix_errors": schema.choice(("white", "correlated"), "LC fix-error models"),
+}
+#: What a study gets for a key its [scenario] table leaves out (``jaxnav init`` writes them).
+SCENARIO_DEFAULTS = {
+    "drive_seed": 0,
+    "drive_style": "mixed",
+    "duration_s": 900.0,
+    "imu_grade": "crossbow_imu300cc",
+    "ins_grade": "span_cpt",
+    "odometer": "obd2_odometer",
+    "iono_scale": 1.0,
+    "constellations": ("gps",),
+    "slots": (16, 14, 14),
+    "bssd": False,
+    "iono_model": "klobuchar",
+    "environment": "open_sky",
+    "slip_flags": "detector",
+    "lc_fix_errors": "white",
 }
 # Peak-memory model (benchmarks/RESULTS.md, "Memory model", peak RSS of jaxnav sweep): the fixed
 # part (XLA, compiled programs; 1.29-1.37 GB measured), bytes per second of drive held (RISS
@@ -142,29 +169,27 @@ class SimFactory:
         self.table = {k: list(v) if isinstance(v, tuple) else v for k, v in t.items()}
         # compiled simulators by (single frequency, IMU grade): one per factory (``_realize``)
         self._realize_fns: dict[tuple[bool, str], object] = {}
-        names = t.get("constellations", ("gps",))
-        slots = t.get("slots", (16, 14, 14))
-        gim_fraction, self.iono_model_fraction = IONO_MODELS[t.get("iono_model", "klobuchar")]
-        self.bssd = t.get("bssd", False)
-        self.lc_fix_correlated = t.get("lc_fix_errors", "white") == "correlated"
-        grades = [t.get("imu_grade", "crossbow_imu300cc"), t.get("ins_grade", "span_cpt")]
+        d = SCENARIO_DEFAULTS | t
+        gim_fraction, self.iono_model_fraction = IONO_MODELS[d["iono_model"]]
+        self.bssd = d["bssd"]
+        self.lc_fix_correlated = d["lc_fix_errors"] == "correlated"
         self.cfg = scenario.ScenarioConfig(
-            drive_seed=t.get("drive_seed", 0),
-            drive_style=t.get("drive_style", "mixed"),
-            duration_s=t.get("duration_s", 900.0),
-            imu_grade=grades[0],
-            odometer=t.get("odometer", "obd2_odometer"),
-            systems=tuple(sorted(_CONSTELLATIONS[c] for c in set(names))),
-            slots_per_system=tuple(slots),
+            drive_seed=d["drive_seed"],
+            drive_style=d["drive_style"],
+            duration_s=d["duration_s"],
+            imu_grade=d["imu_grade"],
+            odometer=d["odometer"],
+            systems=tuple(sorted(_CONSTELLATIONS[c] for c in set(d["constellations"]))),
+            slots_per_system=tuple(d["slots"]),
             obs_params=observations.slip_environment(
                 observations.ObsParams(
-                    iono_scale=t.get("iono_scale", 1.0), gim_error_fraction=gim_fraction
+                    iono_scale=d["iono_scale"], gim_error_fraction=gim_fraction
                 ),
-                t.get("environment", "open_sky"),
+                d["environment"],
             ),
-            slip_flags=t.get("slip_flags", "detector"),
+            slip_flags=d["slip_flags"],
         )
-        self.ins_grade = grades[1]
+        self.ins_grade = d["ins_grade"]
 
     def __reduce__(self):
         # A factory crosses to Dask workers as its [scenario] table and, once simulated, its

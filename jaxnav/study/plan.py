@@ -214,10 +214,14 @@ def make_plan(cfg: StudyConfig, timeline: Timeline) -> Plan:
         np.asarray(cfg.realization_seeds, np.int64), event_names, ids, ckpt_epochs, ckpt_index,
         window, prefix, recovery, mcfg, np.zeros(0, np.int64),
     )
-    # Traces: realization 0, placement 0, first policy / ramp; longest duration first.
+    # Traces (first policy / ramp): realization 0 at placement 0 for every duration (longest
+    # first) and level, then the other runs (realization fastest, then placement) in the same
+    # order, so that the error-growth plot can draw a median and a band over runs per curve.
     order = np.argsort(-plan.lengths[:, 0], kind="stable")
+    n_real, n_place = len(plan.seeds), plan.starts.shape[1]
+    runs = [(r, p) for p in range(n_place) for r in range(n_real)]
     picks = [
-        np.ravel_multi_index((0, d, k, 0, 0, 0), plan.shape)
-        for d in order for k in range(len(n_keep))
+        np.ravel_multi_index((r, d, k, p, 0, 0), plan.shape)
+        for j in (runs[:1], runs[1:]) for d in order for (r, p) in j for k in range(len(n_keep))
     ][: cfg.max_traces]
     return plan._replace(trace_flat=np.sort(np.asarray(picks, np.int64)))

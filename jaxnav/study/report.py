@@ -16,9 +16,13 @@ A study with ``smooth = true`` has a ``solution`` axis (forward, smoothed): the 
 for each (``table.md`` one section per solution, the CSV files a ``solution`` column) and the
 plots too (the smoothed ones with the suffix ``_smoothed``).
 
-Plots (PNG, matplotlib's Agg canvas, no display needed): the per-epoch 2D error of the kept
-example scenarios around their outage, shaded (ramps lighter); and box plots of the maximum 2D
-error by satellites kept and by duration, one box per mode.
+A third table per system and duration gives, per satellites kept and mode, the mean error as %
+of the distance travelled, the median re-convergence time and the mean position NEES with its
+chi-square band and a verdict (``table_summary``: over-confident cells in bold).
+
+Plots (PNG, matplotlib's Agg canvas, no display needed): the 2D error around the outage, median
+and 10-90 % band over the traced runs (outage shaded, ramps lighter); and box plots of the
+maximum 2D error by satellites kept and (two or more durations) by duration, one box per mode.
 """
 
 from __future__ import annotations
@@ -149,22 +153,49 @@ def _n_text(df: pd.DataFrame) -> str:
     return f"{n.min()}" if n.min() == n.max() else f"{n.min()}-{n.max()}"
 
 
-def markdown_by_satellites(df: pd.DataFrame, var: str = "max_2d_m") -> str:
-    """Markdown of ``table_by_satellites``: rows satellites kept, columns modes."""
+def pooled_text(ds: xr.Dataset) -> str:
+    """What one table cell pools, e.g. '7 placements x 3 realizations' (the axes other than
+    system, duration, satellites kept and mode; policies and ramps when there are several)."""
+    def count(dim, one, many):
+        n = ds.sizes.get(dim, 1)
+        return f"{n} {one if n == 1 else many}"
+
+    parts = [count("placement", "placement", "placements"),
+             count("realization", "realization", "realizations")]
+    parts += [count(d, d, many) for d, many in (("policy", "policies"), ("ramp", "ramps"))
+              if ds.sizes.get(d, 1) > 1]
+    return " x ".join(parts)
+
+
+def _cell_text(sub: pd.DataFrame, pooled: str | None) -> str:
+    n = sub["n"].to_numpy()
+    if pooled is None:
+        return f"mean (median / 90th percentile) over {_n_text(sub)} outages per cell"
+    text = f"mean (median / 90th percentile) of {n.max()} outages per cell = {pooled}"
+    if n.min() != n.max():
+        text += f" (down to {n.min()} where the metric is undefined)"
+    return text
+
+
+def markdown_by_satellites(df: pd.DataFrame, var: str = "max_2d_m",
+                           pooled: str | None = None) -> str:
+    """Markdown of ``table_by_satellites``: rows satellites kept, columns modes; ``pooled``
+    (``pooled_text``) says what a cell holds."""
     label = _LABELS.get(var, var)
     out = []
     for (system, dur), sub in df.groupby(["system", "duration_s"], sort=False):
         modes = list(pd.unique(sub["mode"]))
         out.append(f"### Average {label} by satellites kept x mode: {system}, {dur:g} s outages")
         out.append("")
-        out.append(f"mean (median / 90th percentile) over {_n_text(sub)} outages per cell")
+        out.append(_cell_text(sub, pooled))
         out.append("")
         out += _pivot_md(sub, "satellites_kept", "satellites kept", kept_label, modes)
         out.append("")
     return "\n".join(out)
 
 
-def markdown_by_duration(df: pd.DataFrame, var: str = "max_2d_m") -> str:
+def markdown_by_duration(df: pd.DataFrame, var: str = "max_2d_m",
+                         pooled: str | None = None) -> str:
     """Markdown of ``table_by_duration``: rows outage durations, columns modes."""
     label = _LABELS.get(var, var)
     out = []
@@ -174,9 +205,79 @@ def markdown_by_duration(df: pd.DataFrame, var: str = "max_2d_m") -> str:
         modes = list(pd.unique(sub["mode"]))
         out.append(f"### Average {label} by outage duration x mode: {system}, {what}")
         out.append("")
-        out.append(f"mean (median / 90th percentile) over {_n_text(sub)} outages per cell")
+        out.append(_cell_text(sub, pooled))
         out.append("")
         out += _pivot_md(sub, "duration_s", "duration", lambda d: f"{d:g} s", modes)
+        out.append("")
+    return "\n".join(out)
+
+
+#: Consistency verdict of a cell from its mean position NEES (``table_summary``).
+CONSISTENT, OVER, UNDER = "consistent", "over-confident", "under-confident"
+
+
+def table_summary(ds: xr.Dataset) -> pd.DataFrame:
+    """Per (system, duration_s, satellites_kept, mode): n, mean maximum 2D error, mean error as
+    % of the distance travelled, median re-convergence time of the outages that re-converged
+    and their fraction, mean position NEES over the outage windows with its 95 % band and the
+    verdict.
+
+    Band: each outage's window-mean NEES is taken as one chi2(3) draw, so the cell mean of n
+    outages is tested against chi2(3 n) / n. Averaging over a window's epochs only narrows
+    the true spread, so this band is wider than the true one: a cell outside it is
+    over-confident (mean above) or under-confident (below) beyond doubt; NaN NEES (no
+    covariance) gives no verdict."""
+    from scipy.stats import chi2
+
+    cols = ["max_2d_m", "pct_of_distance", "reconv_s", "reconverged", "nees_pos"]
+    df = _frame(ds, cols[0])
+    for c in cols[1:]:
+        df[c] = _frame(ds, c)[c].to_numpy()
+    df["duration_s"] = df["length_s"] if (ds["duration"] < 0).any() else df["duration"]
+    rows = []
+    for key, g in df.groupby(["system", "duration_s", "satellites_kept", "mode"], sort=False):
+        nees = g["nees_pos"].dropna()
+        n_nees = len(nees)
+        lo = hi = np.nan
+        verdict = "n/a"
+        if n_nees:
+            lo, hi = (chi2.ppf(q, 3 * n_nees) / n_nees for q in (0.025, 0.975))
+            m = nees.mean()
+            verdict = OVER if m > hi else UNDER if m < lo else CONSISTENT
+        reconv = g["reconv_s"][g["reconverged"].astype(bool)]
+        rows.append(dict(zip(["system", "duration_s", "satellites_kept", "mode"], key,
+                             strict=True),
+                         n=int(g["max_2d_m"].count()), max_2d_mean=g["max_2d_m"].mean(),
+                         pct_of_distance_mean=g["pct_of_distance"].mean(),
+                         reconv_median_s=reconv.median() if len(reconv) else np.nan,
+                         reconverged_frac=float(g["reconverged"].astype(bool).mean()),
+                         nees_pos_mean=nees.mean() if n_nees else np.nan,
+                         nees_lo=lo, nees_hi=hi, consistency=verdict))
+    out = pd.DataFrame(rows)
+    return _ordered(out, ds, ["system", "duration_s", "satellites_kept", "mode"])
+
+
+def markdown_summary(df: pd.DataFrame, pooled: str | None = None) -> str:
+    """Markdown of ``table_summary``: one row per (satellites kept, mode), per system and
+    duration; over-confident cells in bold."""
+    out = []
+    for (system, dur), sub in df.groupby(["system", "duration_s"], sort=False):
+        out += [f"### Re-convergence, error per distance and consistency: {system}, {dur:g} s "
+                "outages", ""]
+        what = f"{sub['n'].max()} outages per row" + (f" = {pooled}" if pooled else "")
+        out += [f"means of {what}; re-convergence: median of the outages that re-converged "
+                "within the recovery period (their share in brackets); NEES: mean position "
+                "NEES over the outage windows, 3 = consistent, with its 95 % band "
+                "(report.table_summary)", ""]
+        out += ["| satellites kept | mode | max 2D [m] | % of distance | re-convergence [s] | "
+                "NEES pos (band) | filter |", "|---|---|---|---|---|---|---|"]
+        for _, r in sub.iterrows():
+            verdict = f"**{r['consistency']}**" if r["consistency"] == OVER else r["consistency"]
+            out.append(
+                f"| {kept_label(r['satellites_kept'])} | {r['mode']} | {_fmt(r['max_2d_mean'])} | "
+                f"{_fmt(r['pct_of_distance_mean'])} | {_fmt(r['reconv_median_s'])} "
+                f"({100 * r['reconverged_frac']:.0f} %) | {_fmt(r['nees_pos_mean'])} "
+                f"({_fmt(r['nees_lo'])}-{_fmt(r['nees_hi'])}) | {verdict} |")
         out.append("")
     return "\n".join(out)
 
@@ -223,7 +324,11 @@ def write_tables(
             lines += [f"## {_SOLUTION_TITLES.get(solution, solution)}", ""]
             by_sat.insert(0, "solution", solution)
             by_dur.insert(0, "solution", solution)
-        lines += [markdown_by_satellites(by_sat, var), markdown_by_duration(by_dur, var)]
+        pooled = pooled_text(view)
+        lines += [markdown_by_satellites(by_sat, var, pooled),
+                  markdown_by_duration(by_dur, var, pooled)]
+        if all(v in view for v in ("pct_of_distance", "reconv_s", "reconverged", "nees_pos")):
+            lines.append(markdown_summary(table_summary(view), pooled))
         long["by_satellites_csv"].append(by_sat)
         long["by_duration_csv"].append(by_dur)
     paths["markdown"].write_text("\n".join(lines))
@@ -251,11 +356,34 @@ def _figure(n_panels: int, ncols: int = 4, size=(4.2, 3.2)):
     return fig, axes[:n_panels]
 
 
+def error_growth_curves(ds: xr.Dataset, system: str, mode: str):
+    """The curves of one ``plot_error_growth`` panel: (longest traced outage [s], its ramp [s],
+    {satellites kept: (time since outage start [s], median, 10th, 90th percentile of the 2D
+    error [m] over the traced runs, number of runs)}), levels sorted with 'all' last."""
+    on = (ds["trace_system"].values == system) & (ds["trace_mode"].values == mode)
+    sel = np.flatnonzero(on)
+    longest = ds["trace_outage_s"].values[sel].max()
+    sel = sel[ds["trace_outage_s"].values[sel] == longest]
+    ramp = float(ds["trace_ramp_s"].values[sel].max())
+    kept = ds["trace_satellites_kept"].values
+    curves = {}
+    for k in sorted(set(kept[sel].tolist()), key=lambda k: (k == ALL, k)):
+        rows = sel[kept[sel] == k]
+        err = ds["trace_err_enu_m"].values[rows]
+        e2 = np.hypot(err[..., 0], err[..., 1])  # [runs, epochs]
+        lo, med, hi = np.nanpercentile(e2, [10, 50, 90], axis=0)
+        curves[k] = (ds["trace_time_s"].values[rows[0]], med, lo, hi, len(rows))
+    return float(longest), ramp, curves
+
+
 def plot_error_growth(
     ds: xr.Dataset, path: str | os.PathLike, *, system: str | None = None
 ) -> Path | None:
-    """2D error vs time since the outage start of the kept example scenarios (one panel per
-    mode, one line per satellites-kept level at the longest traced duration), outage shaded.
+    """2D error vs time since the outage start, one panel per mode, one curve per
+    satellites-kept level at the longest traced duration: the median over the traced runs
+    (placements x realizations, ``plan`` picks them), with the 10-90 % band of the fewest
+    satellites kept and of no outage (``error_growth_curves``), outage shaded; the title says
+    how many runs a curve holds.
     None when the Dataset holds no traces."""
     if "trace_err_enu_m" not in ds or ds.sizes.get("trace", 0) == 0:
         return None
@@ -264,24 +392,25 @@ def plot_error_growth(
     modes = [m for m in ds["mode"].values.tolist() if np.any(on & (ds["trace_mode"].values == m))]
     fig, axes = _figure(len(modes))
     for ax, mode in zip(axes, modes, strict=True):
-        sel = np.flatnonzero(on & (ds["trace_mode"].values == mode))
-        longest = ds["trace_outage_s"].values[sel].max()
-        sel = sel[ds["trace_outage_s"].values[sel] == longest]
-        ramp = float(ds["trace_ramp_s"].values[sel].max())
+        longest, ramp, curves = error_growth_curves(ds, system, mode)
         if ramp > 0:
-            ax.axvspan(-ramp, longest + ramp, color="0.9", lw=0, label="degraded (ramp)")
-        ax.axvspan(0.0, longest, color="0.75", lw=0, label=f"outage ({longest:g} s)")
-        for t in sorted(sel, key=lambda i: (ds["trace_satellites_kept"].values[i] == ALL,
-                                            ds["trace_satellites_kept"].values[i])):
-            err = ds["trace_err_enu_m"].values[t]
-            e2 = np.hypot(err[:, 0], err[:, 1])
-            k = kept_label(ds["trace_satellites_kept"].values[t])
-            ax.plot(ds["trace_time_s"].values[t], e2, lw=1.3,
-                    label=f"{k} satellites kept" if k != "all" else "no outage (all)")
+            ax.axvspan(-ramp, longest + ramp, color="0.94", lw=0, label="degraded (ramp)")
+        ax.axvspan(0.0, longest, color="0.86", lw=0, label=f"outage ({longest:g} s)")
+        outage = [k for k in curves if k != ALL]  # five bands would hide each other
+        banded = [min(outage)] * bool(outage) + [ALL] * (ALL in curves)
+        for i, (k, (t, med, lo, hi, n_runs)) in enumerate(curves.items()):
+            label = f"{kept_label(k)} satellites kept" if k != ALL else "no outage (all)"
+            ax.plot(t, med, lw=1.4, color=f"C{i}", label=label)
+            if n_runs >= 3 and k in banded:  # a band needs a few runs
+                ax.fill_between(t, lo, hi, color=f"C{i}", alpha=0.2, lw=0)
+        counts = [c[4] for c in curves.values()]
         ax.set_yscale("log")
         ax.set_xlabel("time since outage start [s]")
         ax.set_ylabel("2D error [m]")
-        ax.set_title(f"{mode} / {system}")
+        n = f"{min(counts)}" if min(counts) == max(counts) else f"{min(counts)}-{max(counts)}"
+        what = (f"10-90 % band: {', '.join(kept_label(k) for k in banded)} kept"
+                if min(counts) >= 3 else "no band below 3 runs")
+        ax.set_title(f"{mode} / {system}\nmedian of {n} runs per curve; {what}", fontsize=8)
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
     path = Path(path)
@@ -313,7 +442,8 @@ def plot_distributions(
 ) -> dict[str, Path]:
     """Box plots (whiskers 10th-90th percentile) of ``var`` by satellites kept and by duration
     (complete outages, as the seed-004 table), one box per mode, one panel per system; files
-    ``dist_by_satellites{suffix}.png`` and ``dist_by_duration{suffix}.png``."""
+    ``dist_by_satellites{suffix}.png`` and, for studies of two or more durations,
+    ``dist_by_duration{suffix}.png``."""
     out_dir = Path(out_dir)
     df = _frame(ds, var)
     modes = ds["mode"].values.tolist()
@@ -340,6 +470,8 @@ def plot_distributions(
     outage_levels = sorted(k for k in kept if k != ALL)
     level = 0 if 0 in kept else (outage_levels[0] if outage_levels else ALL)
     durations = sorted(pd.unique(df["length_s"]))
+    if len(durations) < 2:  # one box per mode would repeat dist_by_satellites' column
+        return paths
     fig, axes = _figure(len(systems), ncols=2, size=(6.0, 3.8))
     for ax, system in zip(axes, systems, strict=True):
         sub = df[(df["system"] == system) & (df["satellites_kept"] == level)]

@@ -53,8 +53,9 @@ Documented choices:
   (tests/test_sweep.py). Memory: the forward pass keeps 3 n^2 float64 per
   window epoch and scenario (``jaxnav.filter.smoother``).
 - Per-epoch ENU error traces are kept for at most ``max_traces`` scenarios per group (for the
-  error-growth plot): realization 0, placement 0, first policy and ramp, every satellites-kept
-  level at the longest duration first.
+  error-growth plot; first policy and ramp): realization 0 at placement 0 for every duration
+  and satellites-kept level (longest duration first), then the other realizations and
+  placements, so the plot's median and 10-90 % band per curve span the runs.
 
 Modules: ``plan.py`` (scenario grid), ``engine.py`` (device functions), ``store.py`` (chunks,
 manifest, Dataset), ``reference.py`` (brute-force and single runs); this one runs a sweep. Their
