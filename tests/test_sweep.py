@@ -905,3 +905,24 @@ def test_traces_start_with_run_0_then_span_the_runs():
     assert big.trace_flat.size == n_real * n_dur * n_keep * n_place  # every run, policy / ramp 0
     assert not pol.any() and not ramp.any()
     assert len(set(zip(r, p, strict=True))) == n_real * n_place
+
+
+def test_results_follow_cf_conventions(main_run):
+    """results.nc (read back from disk): the Conventions attribute, long_name and units on every
+    variable (CF flags on booleans), and a coordinate for every dimension, the trace ones
+    included (a CF checker is not among the installed packages: the attributes it requires)."""
+    from jaxnav.study import store
+
+    res = main_run[0]
+    ds = store.load_results(res.path)
+    assert ds.attrs["Conventions"].startswith("CF-1.")
+    assert {"title", "source", "references"} <= set(ds.attrs)
+    for name, var in ds.variables.items():
+        assert var.attrs.get("long_name"), name
+        if var.dtype.kind in "fiu" and name not in ("reconverged",):
+            assert "units" in var.attrs, name
+    assert ds["reconverged"].attrs["flag_meanings"] == "false true"
+    assert ds["max_2d_m"].attrs["units"] == "m" and ds["pct_of_distance"].attrs["units"] == "percent"
+    for dim in ds.dims:
+        assert dim in ds.coords, dim
+    assert ds.sizes["trace"] > 0 and list(ds.trace_epoch.values[:3]) == [0, 1, 2]

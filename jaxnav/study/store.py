@@ -23,12 +23,26 @@ RESULTS_FILE = "results.nc"
 MANIFEST_FILE = "manifest.json"
 CHUNK_DIR = "chunks"
 METRIC_FIELDS = mt.WindowMetrics._fields
-_UNITS = {
-    "max_2d_m": "m", "rms_2d_m": "m", "max_3d_m": "m", "end_2d_m": "m", "end_enu_m": "m",
-    "distance_m": "m", "pct_of_distance": "%", "max_azimuth_err_rad": "rad",
-    "pre_2d_rms_m": "m", "reconv_threshold_m": "m", "reconv_s": "s", "reconverged": "1",
-    "nees_pos": "1", "nees_posvel": "1",
+#: (units, long_name) of each metric in results.nc (CF conventions; jaxnav.study.metrics).
+METRIC_ATTRS = {
+    "max_2d_m": ("m", "maximum horizontal error in the outage window"),
+    "rms_2d_m": ("m", "RMS horizontal error in the outage window"),
+    "max_3d_m": ("m", "maximum 3D error in the outage window"),
+    "end_2d_m": ("m", "horizontal error at the last outage epoch"),
+    "end_enu_m": ("m", "east, north, up error at the last outage epoch"),
+    "distance_m": ("m", "distance travelled during the outage"),
+    "pct_of_distance": ("percent", "maximum horizontal error as a share of the distance"),
+    "max_azimuth_err_rad": ("rad", "maximum azimuth error in the outage window"),
+    "pre_2d_rms_m": ("m", "horizontal RMS error before the outage (metrics.pre_s)"),
+    "reconv_threshold_m": ("m", "re-convergence threshold of the scenario"),
+    "reconv_s": ("s", "re-convergence time after the outage (NaN: not within recovery_s)"),
+    "reconverged": ("1", "re-converged within the recovery period"),
+    "nees_pos": ("1", "mean position NEES over the outage window (3 dof)"),
+    "nees_posvel": ("1", "mean position and velocity NEES over the outage window (6 dof)"),
 }
+_UNITS = {k: u for k, (u, _) in METRIC_ATTRS.items()}
+#: NetCDF conventions the results follow (a test checks the attributes they require).
+CONVENTIONS = "CF-1.10"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -237,31 +251,46 @@ def assemble(plan: Plan, store: _Store, groups, config_hash: str) -> xr.Dataset:
         a = np.stack([pg[k] for pg in per_group]).reshape(lead + per_group[0][k].shape[1:])
         sol = ("solution",) if cfg.smooth else ()
         dims = DIMS + sol + (("enu",) if a.ndim > len(DIMS) + len(sol) else ())
-        data_vars[k] = xr.Variable(dims, a, {"units": _UNITS.get(k, "1")})
+        units, long_name = METRIC_ATTRS.get(k, ("1", k))
+        attrs = {"units": units, "long_name": long_name}
+        if a.dtype == bool:  # CF flags: NetCDF stores booleans as 0 / 1
+            attrs = {"long_name": long_name, "flag_values": np.array([0, 1], np.int8),
+                     "flag_meanings": "false true"}
+        data_vars[k] = xr.Variable(dims, a, attrs)
     dt = float(plan.timeline.epoch_dt_s)
     coords = {
-        "mode": ("mode", np.asarray(cfg.modes, dtype=object)),
-        "system": ("system", np.asarray(cfg.systems, dtype=object)),
-        "realization": ("realization", plan.seeds, {"long_name": "noise realization seed"}),
+        "mode": ("mode", np.asarray(cfg.modes, dtype=object), {"long_name": "PPP mode"}),
+        "system": ("system", np.asarray(cfg.systems, dtype=object),
+                   {"long_name": "navigation system"}),
+        "realization": ("realization", plan.seeds,
+                        {"units": "1", "long_name": "noise realization seed"}),
         "duration": ("duration", plan.duration_s,
                      {"units": "s", "long_name": "outage duration (-1: per placement, length_s)"}),
         "satellites_kept": ("satellites_kept", plan.n_keep,
-                            {"long_name": "satellites kept during the outage (-1: all)"}),
-        "placement": ("placement", np.arange(plan.starts.shape[1])),
-        "policy": ("policy", np.asarray(cfg.policies, dtype=object)),
-        "ramp": ("ramp", plan.ramps * dt, {"units": "s"}),
-        "enu": ("enu", np.asarray(["east", "north", "up"], dtype=object)),
+                            {"units": "1", "long_name": "satellites kept during the outage "
+                             "(-1: all, no outage)"}),
+        "placement": ("placement", np.arange(plan.starts.shape[1]),
+                      {"units": "1", "long_name": "outage placement index"}),
+        "policy": ("policy", np.asarray(cfg.policies, dtype=object),
+                   {"long_name": "which satellites an outage keeps"}),
+        "ramp": ("ramp", plan.ramps * dt,
+                 {"units": "s", "long_name": "gradual degradation before and after the outage"}),
+        "enu": ("enu", np.asarray(["east", "north", "up"], dtype=object),
+                {"long_name": "local-level axis"}),
         **({"solution": ("solution", np.asarray(SOLUTIONS, dtype=object),
                          {"long_name": "forward filter, or forward + RTS smoother over the "
                                        "scenario window"})} if cfg.smooth else {}),
         "start_s": (("duration", "placement"), plan.starts * dt,
                     {"units": "s", "long_name": "outage start after the first epoch"}),
-        "length_s": (("duration", "placement"), plan.lengths * dt, {"units": "s"}),
+        "length_s": (("duration", "placement"), plan.lengths * dt,
+                     {"units": "s", "long_name": "outage length"}),
     }
     if plan.placement_event is not None:
-        coords["placement_event"] = ("placement", np.asarray(plan.placement_event, dtype=object))
+        coords["placement_event"] = ("placement", np.asarray(plan.placement_event, dtype=object),
+                                     {"long_name": "drive event the outage starts on"})
     if plan.placement_id is not None:
-        coords["placement_id"] = ("placement", np.asarray(plan.placement_id, dtype=object))
+        coords["placement_id"] = ("placement", np.asarray(plan.placement_id, dtype=object),
+                                  {"long_name": "outage id of the schedule file"})
     ds = xr.Dataset(data_vars, coords)
     if traces:
         g_idx = np.array([t[0] for t in traces])
@@ -275,22 +304,34 @@ def assemble(plan: Plan, store: _Store, groups, config_hash: str) -> xr.Dataset:
             np.stack([t[2] for t in traces]),
             {"units": "m", "long_name": "estimate - truth, ENU, per epoch (NaN after recovery)"},
         )
+        def one(long_name, units=None):
+            return {"long_name": long_name} | ({"units": units} if units else {})
+
         ds = ds.assign_coords(
+            trace=("trace", np.arange(len(traces)), one("kept error trace index", "1")),
+            trace_epoch=("trace_epoch", np.arange(L), one("epoch of the trace window", "1")),
             trace_time_s=(("trace", "trace_epoch"), t_rel,
-                          {"units": "s", "long_name": "time since the outage start"}),
-            trace_mode=("trace", np.asarray([cfg.modes[i // n_sys] for i in g_idx], object)),
-            trace_system=("trace", np.asarray([cfg.systems[i % n_sys] for i in g_idx], object)),
-            trace_realization=("trace", plan.seeds[r]),
-            trace_duration=("trace", plan.duration_s[d]),
-            trace_satellites_kept=("trace", plan.n_keep[k]),
-            trace_placement=("trace", p),
-            trace_policy=("trace", np.asarray([cfg.policies[i] for i in pol], object)),
-            trace_ramp_s=("trace", plan.ramps[rm] * dt),
-            trace_outage_s=("trace", f["length"] * dt),
+                          one("time since the outage start", "s")),
+            trace_mode=("trace", np.asarray([cfg.modes[i // n_sys] for i in g_idx], object),
+                        one("PPP mode of the trace")),
+            trace_system=("trace", np.asarray([cfg.systems[i % n_sys] for i in g_idx], object),
+                          one("navigation system of the trace")),
+            trace_realization=("trace", plan.seeds[r], one("noise realization seed", "1")),
+            trace_duration=("trace", plan.duration_s[d], one("outage duration axis value", "s")),
+            trace_satellites_kept=("trace", plan.n_keep[k],
+                                   one("satellites kept (-1: all)", "1")),
+            trace_placement=("trace", p, one("outage placement index", "1")),
+            trace_policy=("trace", np.asarray([cfg.policies[i] for i in pol], object),
+                          one("satellites-kept policy")),
+            trace_ramp_s=("trace", plan.ramps[rm] * dt, one("ramp length", "s")),
+            trace_outage_s=("trace", f["length"] * dt, one("outage length", "s")),
         )
     ds.attrs.update(
         {
+            "Conventions": CONVENTIONS,
             "title": f"jaxnav outage sweep {cfg.name!r}",
+            "source": f"jaxnav {jaxnav.__version__} Monte-Carlo outage sweep",
+            "references": "docs/models.md, docs/simulation.md of the jaxnav repository",
             "config_json": cfg.to_json(),
             "config_hash": config_hash,
             "jaxnav_version": jaxnav.__version__,
