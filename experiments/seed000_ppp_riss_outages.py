@@ -196,7 +196,6 @@ def move_plots(ds, sweep_dir: Path, out: Path, label: str) -> list[Path]:
     dist = report.plot_distributions(ds, sweep_dir)
     target = out / f"dist_by_satellites_{label}.png"
     shutil.move(dist["by_satellites"], target)
-    dist["by_duration"].unlink()  # one duration only: the by-duration figure says nothing
     paths.append(target)
     return paths
 

@@ -132,15 +132,17 @@ def merge_scenarios(dss: dict) -> xr.Dataset:
     for label, ds in dss.items():
         np.testing.assert_array_equal(ds["start_s"].values, first["start_s"].values)
         tvars = [v for v in ds.data_vars if "trace" in ds[v].dims]
-        tcoords = [c for c in ds.coords if str(c).startswith("trace_")]
+        tcoords = [c for c in ds.coords if str(c).startswith("trace")]
         metric_parts.append(ds.drop_vars(tvars + tcoords).assign_coords(mode=[label]))
         if tvars:
-            t = ds[tvars]
+            t = ds[tvars].drop_vars("trace", errors="ignore")  # renumbered after the concat
             trace_parts.append(t.assign_coords(
                 trace_mode=("trace", np.asarray([label] * t.sizes["trace"], dtype=object))))
     merged = xr.concat(metric_parts, dim="mode", coords="minimal", compat="override")
     if trace_parts:
         traces = xr.concat(trace_parts, dim="trace", coords="minimal", compat="override")
+        traces = traces.assign_coords(trace=("trace", np.arange(traces.sizes["trace"]),
+                                             first["trace"].attrs))
         merged = xr.merge([merged, traces], combine_attrs="override")
     merged.attrs = dict(first.attrs, title="jaxnav S004 scenarios")
     return merged

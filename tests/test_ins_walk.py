@@ -212,9 +212,12 @@ def test_jaxnav_lc_refuses_satellites_kept(tmp_path):
 
     sched = tmp_path / "s.csv"
     sched.write_text("id,start_s,length_s,satellites_kept\na,60,10,2\n")
+    for name in ("x.csv", "x.pos"):  # present (the argument parser checks) but never read
+        (tmp_path / name).write_text("")
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
-        code = lc.main(["--imu", "x.csv", "--gnss", "x.pos", "--out", str(tmp_path / "o.pos"),
+        code = lc.main(["--imu", str(tmp_path / "x.csv"), "--gnss", str(tmp_path / "x.pos"),
+                        "--out", str(tmp_path / "o.pos"),
                         "--config", str(ROOT / "configs" / "car_gnss_imu_drive.toml"),
                         "--outages", str(sched)])
     assert code == 2 and "satellites_kept > 0 needs raw observations" in err.getvalue()

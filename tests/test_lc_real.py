@@ -307,11 +307,14 @@ def test_bad_config_keys_give_a_clear_error(tmp_path, edit, message):
     with pytest.raises(lc.CarConfigError) as exc:
         lc.load_config(bad)
     assert message in str(exc.value) and str(bad) in str(exc.value)
-    # through the command: exit code 2 and the same message, before any data is read
+    # through the command: exit code 2 and the same message, before any data is read (the
+    # data files are empty: present, as the argument parser requires, but never read)
+    for name in ("x.csv", "x.pos"):
+        (tmp_path / name).write_text("")
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
-        rc = lc.main(["--imu", "x.csv", "--gnss", "x.pos", "--config", str(bad), "--out",
-                      str(tmp_path / "o.pos")])
+        rc = lc.main(["--imu", str(tmp_path / "x.csv"), "--gnss", str(tmp_path / "x.pos"),
+                      "--config", str(bad), "--out", str(tmp_path / "o.pos")])
     assert rc == 2 and message in err.getvalue()
 
 
