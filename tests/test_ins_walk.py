@@ -281,3 +281,18 @@ def test_a_log_that_does_not_start_at_rest_is_refused(tmp_path):
     code, _, err = _run(["--config", str(cfg), "--out", str(tmp_path / "o.pos")])
     assert code == 2 and "not at rest during the first [alignment] level_s = 30 s" in err, err
     assert not (tmp_path / "o.pos").exists()
+
+
+@pytest.mark.slow
+def test_the_walk_run_writes_plots_with_the_outage_runs_apart(walk):
+    """Beside walk.pos: the plots and the summary; the .pos is the run without outages, so the
+    outages are listed (each a separate run) but not shaded on it."""
+    out, _, rows, _ = walk
+    for suffix in ("track.png", "error.png", "outages.png", "nsat.png"):
+        assert (out.parent / f"walk.{suffix}").stat().st_size > 10_000, suffix
+    summary = (out.parent / "walk.summary.md").read_text()
+    assert "separate runs; the solution above has none" in summary
+    assert "| in outages" not in summary
+    for r in rows:
+        assert f"| {r['id']} | {float(r['start_s']):.2f} |" in summary
+    assert "% pos mode  : Tightly coupled PPP/INS" in out.read_text()

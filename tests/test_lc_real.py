@@ -71,7 +71,27 @@ def run(tmp_path_factory):
     idx = np.searchsorted(ref.time_gps_s, sol.time_gps_s - 1e-4)
     assert np.all(np.abs(ref.time_gps_s[idx] - sol.time_gps_s) < 2e-3)
     t0 = float(re.search(r"first IMU sample ([0-9.]+) GPS s", out.read_text()).group(1))
-    return dict(rc=rc, text=text, sol=sol, ref_llh=ref.llh[idx], t_rel=sol.time_gps_s - t0)
+    return dict(rc=rc, text=text, sol=sol, ref_llh=ref.llh[idx], t_rel=sol.time_gps_s - t0,
+                out=out)
+
+
+def test_the_run_writes_rtkpost_headers_plots_and_a_summary(run):
+    """Beside drive.pos: the track, error, per-outage and satellite plots and the summary, whose
+    outage table is the schedule's with the printed maximum errors; RTKPOST header lines."""
+    out = run["out"]
+    for suffix in ("track.png", "error.png", "outages.png", "nsat.png"):
+        data = (out.parent / f"drive.{suffix}").read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, suffix
+    summary = (out.parent / "drive.summary.md").read_text()
+    for oid, start, length in OUTAGES:
+        m = re.search(rf"^\s*{oid}\s+{start:.2f}\s+{length:.2f}\s+\S+\s+([\d.]+)", run["text"],
+                      re.M)
+        assert m, run["text"]
+        row = f"| {oid} | {start:.2f} | {start + length:.2f} | {float(m.group(1)):.3f} |"
+        assert row in summary
+    header = out.read_text().split("\n%  GPST", 1)[0]
+    assert header.count("% inp file  : ") == 3 and "% pos mode  : Loosely coupled INS" in header
+    assert "% obs start : 2025/07/08" in header and "% solution  : Forward" in header
 
 
 def _window(t_rel, start, length):

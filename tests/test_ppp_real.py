@@ -450,11 +450,20 @@ def test_cli_single_frequency_broadcast_klobuchar(esbc, tmp_path, capsys, phase,
             "--out",
             str(out),
             "--p1c1-from-obs",
-            *(["--phase"] if phase else []),
+            *(["--phase"] if phase else ["--no-plots"]),
         ]
     )
     text = capsys.readouterr().out
     assert code == 0, text
+    # plots and the summary beside the .pos, unless --no-plots (issue 22)
+    pictures = [out.parent / f"sf.{s}" for s in ("track.png", "error.png", "nsat.png",
+                                                  "summary.md")]
+    assert all(p.is_file() == phase for p in pictures), pictures
+    header = out.read_text().split("\n%  GPST", 1)[0]
+    for key in ("% inp file  : ", "% pos mode  : PPP Kinematic", "% freqs     : L1\n",
+                "% elev mask : 10.0 deg", "% ionos opt : Broadcast", "% navi sys  : GPS",
+                "% obs start : 2020/06/25", "% ref pos   : "):
+        assert key in header, (key, header)
     assert "final position" in text and "convergence" in text
     assert ("(sf_ppp)" if phase else "(sf_code)") in text
     sol = read_pos(out)

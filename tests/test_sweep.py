@@ -922,7 +922,8 @@ def test_results_follow_cf_conventions(main_run):
         if var.dtype.kind in "fiu" and name not in ("reconverged",):
             assert "units" in var.attrs, name
     assert ds["reconverged"].attrs["flag_meanings"] == "false true"
-    assert ds["max_2d_m"].attrs["units"] == "m" and ds["pct_of_distance"].attrs["units"] == "percent"
+    assert ds["max_2d_m"].attrs["units"] == "m"
+    assert ds["pct_of_distance"].attrs["units"] == "percent"
     for dim in ds.dims:
         assert dim in ds.coords, dim
     assert ds.sizes["trace"] > 0 and list(ds.trace_epoch.values[:3]) == [0, 1, 2]

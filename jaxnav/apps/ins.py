@@ -41,7 +41,7 @@ import jax
 import numpy as np
 
 import jaxnav
-from jaxnav.apps import car_config, existing_file, run_command
+from jaxnav.apps import car_config, existing_file, plots, run_command
 from jaxnav.apps import tc_recorded as tc
 from jaxnav.apps.lc_filter import antenna_track
 from jaxnav.core import schema
@@ -157,6 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--smooth", action="store_true",
                    help="forward filter + RTS smoother (RTKPOST's combined solution)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.add_argument("--no-plots", action="store_true",
+                   help="skip the PNG plots and the Markdown summary beside OUT (apps/plots.py)")
     return p
 
 
@@ -190,7 +192,7 @@ def _loose(cfg: InsConfig, args, sched) -> int:
     lc_args = argparse.Namespace(
         imu=cfg.paths["imu"], imu_tag=cfg.paths.get("imu_tag"), gnss=cfg.paths["gnss_pos"],
         config=str(cfg.path), outages=None, outage_grid=None, duration=None, out=args.out,
-        sweep=None, overwrite=args.overwrite, quiet=True,
+        sweep=None, overwrite=args.overwrite, quiet=True, no_plots=args.no_plots,
         solution="combined" if args.smooth else "forward")
     return lc.run(lc_args, cfg.car, sched)
 
@@ -227,7 +229,15 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
         f"config {cfg.path.name}; solution "
         f"{'combined (forward + RTS smoother)' if args.smooth else 'forward'}",
         f"first IMU sample {rec.t_imu0_gps_s:.3f} GPS s (origin of outage start times)"),
-        program=f"jaxnav {jaxnav.__version__}")
+        program=f"jaxnav {jaxnav.__version__} ins",
+        info=tuple(("inp file", str(cfg.paths[k])) for k in ("ubx", "imu", "imu_tag", "reference")
+                   if cfg.paths.get(k)) + (
+            ("pos mode", f"Tightly coupled PPP/INS ({opts.mode} / {cfg.car.imu_errors_states})"),
+            ("freqs", "L1+L2"),
+            ("solution", "Combined (forward + RTS smoother)" if args.smooth else "Forward"),
+            ("elev mask", f"{opts.elevation_mask_deg:.1f} deg"),
+            ("navi sys", ",".join(c.upper() if c == "gps" else c.capitalize()
+                                  for c in opts.constellations))))
 
     t_rel = rec.time_gps_s - rec.t_imu0_gps_s
     print(f"{PROG}: tight {opts.mode} / {cfg.car.imu_errors_states}, "
@@ -246,6 +256,21 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
         print(f"  wrote {table_path}")
     print(f"  wrote {out_path}; read + prepare {t_read - t0:.1f} s, filters {t_run - t_read:.1f}"
           " s (incl. compilation)")
+    if not args.no_plots:
+        outages = [plots.Outage(str(r["id"]), float(r["start_s"]),
+                                float(r["start_s"] + r["length_s"]),
+                                float(r["tight_max_2d_m"])) for r in rows]
+        ref = None
+        if rec.ref_llh is not None:
+            offset = (tc.reference_offset(rec) if opts.reference_offset == "spp_median"
+                      else np.zeros(3))
+            ref = plots.reference_moved(rec.ref_llh, offset)
+        written = plots.write_run_plots(
+            out_path, sol, t0_gps_s=rec.t_imu0_gps_s, ref_llh=ref, outages=outages,
+            outages_in_solution=False, ref_name="reference track (data.reference)",
+            title=f"jaxnav ins: tight {opts.mode} / {cfg.car.imu_errors_states}, "
+                  f"{'combined' if args.smooth else 'forward'} solution")
+        print("  wrote " + ", ".join(str(p) for p in written.values()))
     return 0
 
 

@@ -77,7 +77,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
-from jaxnav.apps import add_solution_options, existing_file, run_command
+from jaxnav.apps import add_solution_options, existing_file, plots, run_command
 from jaxnav.apps.car_config import (  # noqa: F401  (re-exported: the command's public names)
     SWEEP_MODES,
     UG_M_S2,
@@ -156,6 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep", metavar="DIR", help="also run the outage sweep of [sweep] into DIR")
     p.add_argument("--overwrite", action="store_true", help="replace an existing sweep in DIR")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-plots", action="store_true",
+                   help="skip the PNG plots and the Markdown summary beside OUT (apps/plots.py)")
     return p
 
 
@@ -219,7 +221,11 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
             f"{'combined (forward + RTS smoother)' if smooth else 'forward'}",
             f"first IMU sample {drive.t_imu0_gps_s:.3f} GPS s (origin of outage start times)",
         ),
-        program=f"jaxnav {jaxnav.__version__}",
+        program=f"jaxnav {jaxnav.__version__} lc",
+        info=(("inp file", str(args.imu)), ("inp file", str(args.imu_tag or args.imu + ".tag")),
+              ("inp file", str(args.gnss)),
+              ("pos mode", f"Loosely coupled INS ({cfg.imu_errors_states}) on the --gnss fixes"),
+              ("solution", "Combined (forward + RTS smoother)" if smooth else "Forward")),
     )
 
     err = np.asarray(mt.enu_errors(jnp.asarray(sol.llh), jnp.asarray(drive.ref_llh)))
@@ -276,6 +282,17 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
               f"E {ze:.2f}, N {zn:.2f}, U {zu:.2f} (1 = sigmas true; z2_e / z2_n per outage)")
     print(f"wrote {args.out}; read {t_read - t_start:.1f} s, filter {t_run - t_read:.1f} s "
           f"(incl. compilation)")
+    if not getattr(args, "no_plots", False):
+        outages = []
+        if plan is not None:
+            outages = [plots.Outage(oid, float(plan.start_s[k]),
+                                    float(plan.start_s[k] + plan.length_s[k]),
+                                    float(m.max_2d_m[k])) for k, oid in enumerate(plan.ids)]
+        written = plots.write_run_plots(
+            args.out, sol, t0_gps_s=drive.t_imu0_gps_s, ref_llh=drive.ref_llh, outages=outages,
+            ref_name="GNSS track (--gnss)", title=f"jaxnav lc: {Path(args.out).name} "
+            f"({'combined' if smooth else 'forward'} solution)")
+        print("wrote " + ", ".join(str(p) for p in written.values()))
 
     if args.sweep:
         t0 = time.perf_counter()

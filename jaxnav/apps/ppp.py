@@ -50,7 +50,7 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
-from jaxnav.apps import add_solution_options, existing_file
+from jaxnav.apps import add_solution_options, existing_file, plots
 from jaxnav.core.gpstime import gps_seconds_to_datetime64
 from jaxnav.filter import ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
@@ -136,6 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     p1c1.add_argument("--no-p1c1", action="store_true",
                       help="use the C/A code as P1 (accepts up to ~1 m of satellite bias)")
     p.add_argument("--out", required=True, help="output RTKLIB .pos file")
+    p.add_argument("--no-plots", action="store_true",
+                   help="skip the PNG plots and the Markdown summary beside OUT (apps/plots.py)")
     add_solution_options(p)
     return p
 
@@ -389,15 +391,40 @@ def _main(args, argv, t_start) -> int:
     # RTKLIB's quality flag: PPP for a carrier-phase solution, "single" for code only.
     q = pos_io.Q_PPP if ppp_modes.get(mode).uses_phase else pos_io.Q_SINGLE
     sol = _pos_solution(prep, out, q)
+    # RTKPOST writes no line for an epoch without a solution: a GNSS-only filter without a
+    # satellite has only its own prediction (frozen position, growing sigmas), so it is left
+    # out rather than written as dead reckoning (Q = 7).
+    solved = np.asarray(sol.ns) > 0
+    sol = pos_io.PosSolution(*(np.asarray(a)[solved] for a in sol))
     cmd = "jaxnav ppp " + " ".join(argv)
+    inputs = [args.obs, *([args.nav] if args.nav else []), *args.sp3,
+              *([args.clk] if args.clk else []), *([args.ionex] if args.ionex else []),
+              *([args.dcb] if args.dcb else [])]
+    info = [("inp file", f) for f in inputs] + [
+        ("pos mode", f"PPP {args.mode.capitalize()} ({mode})"),
+        ("freqs", "L1" if args.freq == "single" else "L1+L2"),
+        ("solution", "Combined (forward + RTS smoother)" if smooth else "Forward"),
+        ("elev mask", f"{args.elevation_mask:.1f} deg"),
+        ("ionos opt", {"ionex": "IONEX TEC", "klobuchar": "Broadcast",
+                       "none": "Off"}[opt.iono] if args.freq == "single" else "Iono-Free LC"),
+        ("tropo opt", "Estimate ZTD" if cfg.estimate_zwd else "Saastamoinen"),
+        ("ephemeris", "Precise" if args.sp3 else "Broadcast"),
+        ("navi sys", ",".join({"G": "GPS", "E": "Galileo", "R": "GLONASS", "C": "BeiDou"}.get(
+            x, x) for x in args.systems)),
+        ("tidecorr", "off" if args.no_tides else "solid"),
+    ]
+    if args.ref is not None:
+        ref_llh = np.asarray(geodesy.ecef_to_llh(jnp.asarray(args.ref, float)))
+        info.append(("ref pos", f"{math.degrees(ref_llh[0]):.9f} {math.degrees(ref_llh[1]):.9f} "
+                                f"{ref_llh[2]:.4f}"))
     pos_io.write_pos(
         args.out,
         sol,
-        comments=(
-            f"mode      : {args.mode} {args.freq}-frequency {mode} ({','.join(args.systems)}); "
-            f"solution {'combined (forward + RTS smoother)' if smooth else 'forward'}",
-            f"command   : {cmd}",
-        ),
+        info=tuple(info),
+        comments=(f"command   : {cmd}",) + ((
+            f"no solution: {int((~solved).sum())} epoch(s) without a satellite used left "
+            "out",) if not solved.all() else ()),
+        program=f"jaxnav {jaxnav.__version__} ppp",
     )
 
     used = np.asarray(out.n_sat) > 0
@@ -488,6 +515,13 @@ def _main(args, argv, t_start) -> int:
         f"  wrote {args.out}  (read+prepare {t_read - t_start:.1f} s, filter "
         f"{t_run - t_read:.1f} s)"
     )
+    if not args.no_plots:
+        ref_llh = np.asarray(geodesy.ecef_to_llh(jnp.asarray(ref, float)))
+        written = plots.write_run_plots(
+            args.out, sol, t0_gps_s=float(prep.time_gps_s[0]), ref_llh=ref_llh,
+            ref_name=ref_name, title=f"jaxnav ppp: {args.mode} {args.freq}-frequency {mode}, "
+            f"{'combined' if smooth else 'forward'} solution")
+        print("  wrote " + ", ".join(str(p) for p in written.values()))
     return 0
 
 

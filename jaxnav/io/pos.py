@@ -303,12 +303,16 @@ def write_pos(
     outage: np.ndarray | None = None,
     comments: tuple[str, ...] = (),
     program: str = "jaxnav",
+    info: tuple[tuple[str, str], ...] = (),
 ) -> None:
     """Write an RTKLIB llh ``.pos`` file (GPST calendar time, ms) readable by RTKLIB and read_pos.
 
     Precision: lat/lon 1e-9 deg (0.1 mm), height and sigmas 0.1 mm, velocities 1e-5 m/s, time
     1 ms. Epochs with ``outage`` True (or already Q = 7) are written with Q = 7 (see module
     docstring). Velocity columns are written when ``sol.vel_enu`` holds finite values.
+    The header is RTKPOST's: ``% program``, the ``info`` (key, value) lines (``inp file``,
+    ``pos mode``, ``freqs``, ``elev mask``, ...), ``% obs start`` / ``% obs end`` of the first
+    and last epoch written, then ``comments`` and the column line.
     """
     path = Path(path)
     n = np.asarray(sol.time_gps_s).size
@@ -329,6 +333,12 @@ def write_pos(
     h = np.asarray(sol.llh)[:, 2]
     times = _format_time(sol.time_gps_s)
     head = [f"% program   : {program}"]
+    head += [f"% {key:10s}: {value}" for key, value in info]
+    if n:
+        for key, t in (("obs start", sol.time_gps_s[0]), ("obs end", sol.time_gps_s[-1])):
+            week, tow = divmod(float(t), 604800.0)
+            head.append(f"% {key:10s}: {_format_time(np.asarray([t]))[0]} GPST "
+                        f"(week{int(week):04d} {tow:.3f}s)")
     head += [f"% {c}" for c in comments]
     head.append(f"% outage    : Q={Q_OUTAGE} (RTKLIB dead reckoning) marks epochs without GNSS")
     head.append(
