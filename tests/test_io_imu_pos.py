@@ -424,13 +424,18 @@ def test_pos_roundtrip_and_outage_flag(tmp_path, vel):
     np.testing.assert_array_equal(back.q[~outage], sol.q[~outage])
     assert back.has_velocity == vel
     text = path.read_text().splitlines()
-    assert all(line.startswith("%") for line in text[:5])
+    n_head = next(i for i, line in enumerate(text) if not line.startswith("%"))
+    assert n_head == 7 and text[n_head - 1].startswith("%  GPST")
+    # RTKPOST's obs start / end lines: calendar time, GPS week and time of week (2020-06-25
+    # is a Thursday of week 2111)
+    assert text[1] == "% obs start : 2020/06/25 23:59:50.000 GPST (week2111 431990.000s)"
+    assert text[2].startswith("% obs end   : 2020/06/26 ")
     # RTKLIB parses fixed fields: date, time, then whitespace-separated numbers
-    first = text[5].split()
+    first = text[n_head].split()
     assert first[0] == "2020/06/25" and first[1] == "23:59:50.000"
     assert len(first) == 2 + 13 + (9 if vel else 0)
     # across midnight the calendar rolls over
-    assert text[5 + 41].split()[:2] == ["2020/06/26", "00:00:00.250"]
+    assert text[n_head + 41].split()[:2] == ["2020/06/26", "00:00:00.250"]
 
 
 def test_pos_real_file_roundtrip(tmp_path):
