@@ -106,11 +106,11 @@ def _sweep(args) -> int:
         print(f"jaxnav sweep: invalid study: {e}", file=sys.stderr)
         return 2
     try:
-        if args.check:
+        if args.check or args.dry_run:
             return _check_study(cfg, factory, args.config, args.force,
-                                1 if args.scheduler else args.workers)
+                                1 if args.scheduler else args.workers, plan_text=args.dry_run)
         if args.out is None:
-            print("jaxnav sweep: --out is required (or --check to validate only)",
+            print("jaxnav sweep: --out is required (or --check / --dry-run to validate only)",
                   file=sys.stderr)
             return 2
         return _run_study(cfg, factory, Path(args.out), args.resume, args.overwrite, args.force,
@@ -120,8 +120,43 @@ def _sweep(args) -> int:
         return 2
 
 
-def _check_study(cfg, factory, path, force: bool, workers: int | str) -> int:
-    """``jaxnav sweep --check``: every pre-work check, a summary, no file written."""
+def _dry_run_text(cfg, plan) -> str:
+    """The plan of ``jaxnav sweep --dry-run``: axes, placements, sizes and the estimated time
+    (``study.costs``)."""
+    from jaxnav.study import costs
+    from jaxnav.study.report import kept_label
+
+    dt = plan.timeline.epoch_dt_s
+    starts = plan.starts[0] * dt
+    shown = ", ".join(f"{s:g}" for s in starts[:12]) + (" ..." if starts.size > 12 else "")
+    lines = [
+        f"  modes           : {', '.join(cfg.modes)}",
+        f"  systems         : {', '.join(cfg.systems)}",
+        f"  durations       : {', '.join(f'{d:g} s' for d in plan.duration_s)}",
+        f"  satellites kept : {', '.join(kept_label(k) for k in plan.n_keep)}",
+        f"  policies, ramps : {', '.join(cfg.policies)}; "
+        f"{', '.join(f'{r * dt:g} s' for r in plan.ramps)}",
+        f"  realizations    : {len(plan.seeds)} (seeds {plan.seeds[0]} .. {plan.seeds[-1]})",
+        f"  placements      : {starts.size} ({cfg.placement.kind}), starts [s] {shown}",
+        f"  scenarios       : {plan.n_per_group} per group x {len(cfg.modes) * len(cfg.systems)}"
+        f" group(s), chunks of {cfg.chunk_size}; window {plan.window} epochs of {dt:g} s",
+    ]
+    est = costs.estimate(cfg, plan, plan.timeline.n_epochs * dt)
+    lines.append(
+        f"  estimated time  : about {est.seconds / 60:.1f} min on one worker (compilation "
+        f"{est.compile_s:.0f} s, full runs {est.full_s:.0f} s, outage windows {est.eval_s:.0f} s,"
+        f" simulation and files {est.other_s:.0f} s; costs measured {costs.MEASURED}, "
+        "+-30 % machine drift; more workers divide the windows only)")
+    if est.substituted:
+        lines.append("  (not measured, estimated with another cell's costs: " + ", ".join(
+            f"{k} as {v}" for k, v in est.substituted.items()) + ")")
+    return "\n".join(lines)
+
+
+def _check_study(cfg, factory, path, force: bool, workers: int | str,
+                 plan_text: bool = False) -> int:
+    """``jaxnav sweep --check`` (and ``--dry-run``, which adds the plan and its estimated
+    time): every pre-work check, a summary, no file written."""
     from jaxnav.study import sweep
 
     plan, workers = sweep.plan_and_workers(cfg, factory, workers, force=force)  # as a run would
@@ -135,6 +170,8 @@ def _check_study(cfg, factory, path, force: bool, workers: int | str) -> int:
         need = estimate(cfg, rows=plan.max_rows, chunk_epochs=cfg.chunk_size * plan.window)
         line += f"; memory about {need['total'] / 1e9:.2f} GB per worker, {workers} worker(s)"
     print(line)
+    if plan_text:
+        print(_dry_run_text(cfg, plan))
     return 0
 
 
@@ -243,6 +280,9 @@ def main(argv=None) -> int:
                    help="run a study whose memory estimate exceeds the memory available")
     p.add_argument("--check", action="store_true",
                    help="validate the study (schema, plan, memory) and print its size; no run")
+    p.add_argument("--dry-run", action="store_true",
+                   help="--check, then the plan (axes, placements, scenarios, chunks) and its "
+                        "estimated run time from measured costs; no run")
     _parallel_options(p)
     p.set_defaults(func=_sweep)
 

@@ -350,3 +350,29 @@ def test_init_writes_a_valid_template_with_every_key_and_its_default(tmp_path, c
         b.ins_grade, b.bssd, b.lc_fix_correlated)
     assert cli.main(["init", str(path)]) == 2  # no silent overwrite
     assert "exists; pass --overwrite" in capsys.readouterr().err
+
+
+def test_dry_run_prints_the_plan_and_its_estimate(tmp_path, capsys):
+    """``--dry-run``: the --check line, then the axes, placements, scenario count and a time
+    estimate that is the cost model's sum (study.costs) over the groups; nothing written."""
+    from jaxnav.study import config as sc
+    from jaxnav.study import costs, sweep
+    from jaxnav.study.factory import SimFactory
+
+    cfg_path = tmp_path / "tiny.toml"
+    cfg_path.write_text(TINY.replace('modes = ["sf_ppp"]', 'modes = ["sf_ppp", "float_ppp"]'))
+    assert cli.main(["sweep", str(cfg_path), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "placements      : 3 (grid), starts [s] 120, 160, 200" in out
+    assert "scenarios       : 6 per group x 2 group(s)" in out
+    assert "sf_ppp/riss as float_ppp/riss" in out  # not measured: said so
+    cfg = sc.load(cfg_path, modes=SimFactory.modes, systems=SimFactory.systems)
+    plan = sweep.make_plan(cfg, SimFactory(cfg.scenario_dict).timeline(cfg))
+    c = costs.COSTS[("float_ppp", "riss")]
+    want = 2 * (c.compile_s + len(plan.seeds) * (plan.timeline.n_epochs * c.full_epoch_s
+                                                  + c.other_per_realization_s)
+                + plan.n_per_group * plan.window * c.scenario_epoch_s)
+    want += costs.DRIVE_S_PER_S * plan.timeline.n_epochs * plan.timeline.epoch_dt_s
+    assert costs.estimate(cfg, plan, 240.0).seconds == pytest.approx(want, rel=1e-12)
+    assert f"about {want / 60:.1f} min" in out
+    assert list(tmp_path.iterdir()) == [cfg_path]
