@@ -14,7 +14,8 @@ study, which makes the estimate conservative).
     python benchmarks/sweep_costs.py --cells float_ppp/riss,df_code/ins15
 
 The last printed line is JSON ``{"<mode>/<system>": {"compile_s": .., "full_epoch_s": ..,
-"scenario_epoch_s": .., "other_per_realization_s": ..}, "drive_s_per_s": ..}``; the table and the JSON go to RESULTS.md.
+"scenario_epoch_s": .., "other_per_realization_s": ..}, "drive_s_per_s": ..}``; the table and
+the JSON go to RESULTS.md.
 """
 
 from __future__ import annotations

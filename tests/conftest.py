@@ -9,6 +9,7 @@ unit of their own, so that no two of them ever run at the same time. Units start
 import importlib
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -48,6 +49,9 @@ if os.environ.get("JAXNAV_TYPECHECK", "1") != "0":
 # two xdist workers, so Dask worker processes would only oversubscribe the cores; the Dask path
 # is tested on its own in tests/test_parallel.py.
 os.environ.setdefault("JAXNAV_WORKERS", "1")
+# The prepared-observation cache of `jaxnav ppp` (apps/prep_cache.py) in a folder of this run,
+# not the user's ~/.cache: a test never reads an entry another run (other code) wrote.
+os.environ["JAXNAV_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxnav-test-cache-")
 
 HEAVY_GROUP = "heavy"
 # Work units that take longest (docs/testing.md, measured on 2 cores), started first so that

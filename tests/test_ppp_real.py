@@ -500,3 +500,41 @@ def test_state_layouts_are_named():
     assert isinstance(ppp_only.POS_LAYOUT, StateLayout)
     assert ppp_only.POS_LAYOUT.names == ("pos",)
     assert ppp_only.POS_VEL_LAYOUT.names == ("pos", "vel")
+
+
+def test_a_second_run_on_the_same_files_reads_them_from_the_cache(esbc, tmp_path, capsys,
+                                                                   monkeypatch):
+    """``jaxnav ppp`` twice on the same files and options: the second run takes the prepared
+    observations from the cache (no RINEX is read) and writes the same solution; a changed
+    option (--no-tides) is another entry; --no-cache reads the files (issue 22)."""
+    from jaxnav.apps import ppp as app
+    from jaxnav.apps import prep_cache
+
+    monkeypatch.setenv("JAXNAV_CACHE_DIR", str(tmp_path / "cache"))
+    ref = ",".join(f"{v:.4f}" for v in REF_ECEF)
+    base = ["--obs", str(OBS), "--nav", str(NAV), "--mode", "kinematic", "--freq", "single",
+            "--start", "2020-06-25T00:00:00", "--duration", "1800", "--ref", ref,
+            "--p1c1-from-obs", "--no-plots"]
+
+    def run(name, *extra):
+        assert app.main([*base, "--out", str(tmp_path / name), *extra]) == 0
+        text = capsys.readouterr().out
+        rows = [ln for ln in (tmp_path / name).read_text().splitlines() if ln[0] != "%"]
+        return text, rows
+
+    first, rows1 = run("a.pos")
+    assert "observations from the cache" not in first
+    assert len(list(prep_cache.cache_dir().glob("*.pkl"))) == 1
+
+    def no_reading(*a, **k):
+        raise AssertionError("RINEX read although the cache holds the prepared observations")
+
+    real_reader = app.read_rinex_obs
+    monkeypatch.setattr(app, "read_rinex_obs", no_reading)
+    second, rows2 = run("b.pos")
+    assert "prepared observations from the cache" in second and rows2 == rows1
+    monkeypatch.setattr(app, "read_rinex_obs", real_reader)
+    run("c.pos", "--no-tides")
+    assert len(list(prep_cache.cache_dir().glob("*.pkl"))) == 2
+    third, rows3 = run("d.pos", "--no-cache")
+    assert "observations from the cache" not in third and rows3 == rows1

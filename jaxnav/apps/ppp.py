@@ -50,7 +50,7 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
-from jaxnav.apps import add_solution_options, existing_file, plots
+from jaxnav.apps import add_solution_options, existing_file, plots, prep_cache
 from jaxnav.core.gpstime import gps_seconds_to_datetime64
 from jaxnav.filter import ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
@@ -138,6 +138,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output RTKLIB .pos file")
     p.add_argument("--no-plots", action="store_true",
                    help="skip the PNG plots and the Markdown summary beside OUT (apps/plots.py)")
+    p.add_argument("--no-cache", action="store_true",
+                   help="read and prepare the files even if the cache of prepared observations "
+                        "holds them ($JAXNAV_CACHE_DIR or ~/.cache/jaxnav; apps/prep_cache.py)")
+    p.add_argument("--quiet", action="store_true", help="print only errors and the summary")
     add_solution_options(p)
     return p
 
@@ -348,25 +352,42 @@ def _main(args, argv, t_start) -> int:
         p1c1_m=p1c1_m,
         ignore_p1c1=args.no_p1c1,
     )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        obs = read_rinex_obs(
-            args.obs,
-            prep_mod.rinex_requests(args.freq, args.systems, p1_codes=args.p1c1_from_obs),
-            tlim=window,
-            on_missing="nan",
-            indicators=True,
-        )
-    if args.p1c1_from_obs:
-        opt.p1c1_m = prep_mod.p1c1_from_observations(obs)
-    nav = (
-        read_broadcast_ephemeris(args.nav, systems="".join(args.systems)) if args.nav else None
-    )
-    sp3 = read_sp3(args.sp3) if args.sp3 else None
-    clk = read_clk(args.clk, systems=set(args.systems)) if args.clk else None
-    ionex = read_ionex(args.ionex) if args.ionex else None
-    products = prep_mod.Products(nav=nav, sp3=sp3, clk=clk, ionex=ionex)
-    prep = prep_mod.prepare_gnss(obs, products, opt, static_receiver=args.mode == "static")
+    def read_and_prepare():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            obs = read_rinex_obs(
+                args.obs,
+                prep_mod.rinex_requests(args.freq, args.systems, p1_codes=args.p1c1_from_obs),
+                tlim=window,
+                on_missing="nan",
+                indicators=True,
+            )
+        if args.p1c1_from_obs:
+            opt.p1c1_m = prep_mod.p1c1_from_observations(obs)
+        nav = (read_broadcast_ephemeris(args.nav, systems="".join(args.systems)) if args.nav
+               else None)
+        sp3 = read_sp3(args.sp3) if args.sp3 else None
+        clk = read_clk(args.clk, systems=set(args.systems)) if args.clk else None
+        ionex = read_ionex(args.ionex) if args.ionex else None
+        products = prep_mod.Products(nav=nav, sp3=sp3, clk=clk, ionex=ionex)
+        return obs, prep_mod.prepare_gnss(obs, products, opt,
+                                          static_receiver=args.mode == "static")
+
+    inputs = [args.obs, *([args.nav] if args.nav else []), *args.sp3,
+              *([args.clk] if args.clk else []), *([args.ionex] if args.ionex else []),
+              *([args.dcb] if args.dcb else [])]
+    options = {k: getattr(args, k) for k in (
+        "freq", "systems", "no_windup", "no_tides", "sp3_one_sided", "p1c1_from_obs",
+        "no_p1c1", "mode")} | {"window": window}
+    if not args.quiet:
+        print(f"jaxnav ppp: reading and preparing {args.obs} and {len(inputs) - 1} product "
+              f"file(s)" + ("" if args.no_cache else " (or from the cache)") + " ...",
+              flush=True)
+    (obs, prep), hit, cache_key = prep_cache.cached(inputs, options, read_and_prepare,
+                                                    enabled=not args.no_cache)
+    if hit and not args.quiet:
+        print(f"  prepared observations from the cache ({prep_cache.cache_dir()}/"
+              f"{cache_key[:12]}...; --no-cache to read the files again)")
     t_read = time.time()
 
     sys_ids = tuple(sorted({prep_mod.LETTER_TO_SYS[s] for s in args.systems}))
@@ -397,9 +418,6 @@ def _main(args, argv, t_start) -> int:
     solved = np.asarray(sol.ns) > 0
     sol = pos_io.PosSolution(*(np.asarray(a)[solved] for a in sol))
     cmd = "jaxnav ppp " + " ".join(argv)
-    inputs = [args.obs, *([args.nav] if args.nav else []), *args.sp3,
-              *([args.clk] if args.clk else []), *([args.ionex] if args.ionex else []),
-              *([args.dcb] if args.dcb else [])]
     info = [("inp file", f) for f in inputs] + [
         ("pos mode", f"PPP {args.mode.capitalize()} ({mode})"),
         ("freqs", "L1" if args.freq == "single" else "L1+L2"),
@@ -439,8 +457,8 @@ def _main(args, argv, t_start) -> int:
         f"{len(prep.sv)} satellites"
     )
     print(
-        f"  orbits/clocks : {'SP3' if sp3 is not None else 'broadcast'} / "
-        f"{'CLK' if clk is not None else ('SP3' if sp3 is not None else 'broadcast')}; "
+        f"  orbits/clocks : {'SP3' if args.sp3 else 'broadcast'} / "
+        f"{'CLK' if args.clk else ('SP3' if args.sp3 else 'broadcast')}; "
         f"iono {opt.iono if args.freq == 'single' else 'ionosphere-free'}; slips flagged "
         f"LLI {prep.slip_counts['lli']}, GF {prep.slip_counts['gf']}, "
         f"MW {prep.slip_counts['mw']}"
