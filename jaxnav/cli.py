@@ -265,7 +265,7 @@ def main(argv=None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("demo", help="outage sweep on a built-in simulated drive (no downloads)")
-    p.add_argument("--out", default="demo-out", help="output folder")
+    p.add_argument("--out", default="demo-out", help="output folder (default demo-out)")
     p.add_argument("--resume", action="store_true", help="reuse completed chunks in --out")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result")
     _parallel_options(p)

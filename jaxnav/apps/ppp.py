@@ -99,11 +99,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clk", type=existing_file, help="RINEX clock file (precise satellite clocks)")
     p.add_argument("--ionex", type=existing_file,
                    help="IONEX maps for the single-frequency ionosphere")
-    p.add_argument("--mode", choices=("static", "kinematic"), required=True)
-    p.add_argument("--freq", choices=("single", "dual"), required=True)
+    p.add_argument("--mode", choices=("static", "kinematic"), required=True,
+                   help="static: one position for the whole file; kinematic: a position per "
+                        "epoch (random walk, 100 m/sqrt(s))")
+    p.add_argument("--freq", choices=("single", "dual"), required=True,
+                   help="single: L1 C/A code (and --phase); dual: ionosphere-free P1/P2 code "
+                        "and carrier")
     p.add_argument("--phase", action="store_true",
                    help="with --freq single: add the L1 carrier phase (sf_ppp)")
-    p.add_argument("--systems", type=_parse_systems, default=("G",), help="e.g. G or G,E")
+    p.add_argument("--systems", type=_parse_systems, default=("G",),
+                   help="constellation letters, e.g. G or G,E (default G)")
     p.add_argument("--start", help="first epoch, ISO GPST (e.g. 2020-06-25T00:00:00)")
     p.add_argument("--duration", type=float, help="seconds to process from --start")
     p.add_argument("--ref", type=_parse_xyz, help="reference ECEF X,Y,Z [m] for the statistics")
@@ -120,8 +125,10 @@ def build_parser() -> argparse.ArgumentParser:
         default=3600.0,
         help="RMS over epochs this many seconds after the start (default 3600)",
     )
-    p.add_argument("--no-windup", action="store_true")
-    p.add_argument("--no-tides", action="store_true")
+    p.add_argument("--no-windup", action="store_true",
+                   help="do not correct the carrier phase wind-up (on by default)")
+    p.add_argument("--no-tides", action="store_true",
+                   help="do not correct the solid Earth tide (on by default)")
     p.add_argument(
         "--sp3-one-sided",
         action="store_true",
