@@ -502,7 +502,8 @@ def test_state_layouts_are_named():
     assert ppp_only.POS_VEL_LAYOUT.names == ("pos", "vel")
 
 
-def test_a_second_run_on_the_same_files_reads_them_from_the_cache(esbc, tmp_path, capsys,
+@needs_data
+def test_a_second_run_on_the_same_files_reads_them_from_the_cache(tmp_path, capsys,
                                                                    monkeypatch):
     """``jaxnav ppp`` twice on the same files and options: the second run takes the prepared
     observations from the cache (no RINEX is read) and writes the same solution; a changed
