@@ -147,7 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the PNG plots and the Markdown summary beside OUT (apps/plots.py)")
     p.add_argument("--no-cache", action="store_true",
                    help="read and prepare the files even if the cache of prepared observations "
-                        "holds them ($JAXNAV_CACHE_DIR or ~/.cache/jaxnav; apps/prep_cache.py)")
+                        "holds them, and renew the entry ($JAXNAV_CACHE_DIR or ~/.cache/jaxnav;"
+                        " apps/prep_cache.py)")
     p.add_argument("--quiet", action="store_true", help="print only errors and the summary")
     add_solution_options(p)
     return p
@@ -380,9 +381,10 @@ def _main(args, argv, t_start) -> int:
         return obs, prep_mod.prepare_gnss(obs, products, opt,
                                           static_receiver=args.mode == "static")
 
-    inputs = [args.obs, *([args.nav] if args.nav else []), *args.sp3,
-              *([args.clk] if args.clk else []), *([args.ionex] if args.ionex else []),
-              *([args.dcb] if args.dcb else [])]
+    roles = [("--obs", args.obs), ("--nav", args.nav), *(("--sp3", f) for f in args.sp3),
+             ("--clk", args.clk), ("--ionex", args.ionex), ("--dcb", args.dcb)]
+    roles = [(r, f) for r, f in roles if f]
+    inputs = [f for _, f in roles]
     options = {k: getattr(args, k) for k in (
         "freq", "systems", "no_windup", "no_tides", "sp3_one_sided", "p1c1_from_obs",
         "no_p1c1", "mode")} | {"window": window}
@@ -390,8 +392,9 @@ def _main(args, argv, t_start) -> int:
         print(f"jaxnav ppp: reading and preparing {args.obs} and {len(inputs) - 1} product "
               f"file(s)" + ("" if args.no_cache else " (or from the cache)") + " ...",
               flush=True)
-    (obs, prep), hit, cache_key = prep_cache.cached(inputs, options, read_and_prepare,
-                                                    enabled=not args.no_cache)
+    # (on a cache hit opt.p1c1_m stays unset: only the preparation reads it)
+    (obs, prep), hit, cache_key = prep_cache.cached(roles, options, read_and_prepare,
+                                                    read=not args.no_cache)
     if hit and not args.quiet:
         print(f"  prepared observations from the cache ({prep_cache.cache_dir()}/"
               f"{cache_key[:12]}...; --no-cache to read the files again)")
@@ -540,7 +543,7 @@ def _main(args, argv, t_start) -> int:
         f"  wrote {args.out}  (read+prepare {t_read - t_start:.1f} s, filter "
         f"{t_run - t_read:.1f} s)"
     )
-    if not args.no_plots:
+    if not args.no_plots and sol.time_gps_s.size:  # (no epoch with a satellite: no plots)
         ref_llh = np.asarray(geodesy.ecef_to_llh(jnp.asarray(ref, float)))
         written = plots.write_run_plots(
             args.out, sol, t0_gps_s=float(prep.time_gps_s[0]), ref_llh=ref_llh,
