@@ -147,6 +147,11 @@ def _dry_run_text(cfg, plan) -> str:
         f"{est.compile_s:.0f} s, full runs {est.full_s:.0f} s, outage windows {est.eval_s:.0f} s,"
         f" simulation and files {est.other_s:.0f} s; costs measured {costs.MEASURED}, "
         "+-30 % machine drift; more workers divide the windows only)")
+    if cfg.smooth:
+        lines.append("  (smooth = true: the RTS smoother's passes are not in the measured costs; "
+                     "expect a longer run)")
+    if cfg.scenario_dict.get("source", "simulated") != "simulated":
+        lines.append("  (a recorded drive: costs were measured on simulated drives)")
     if est.substituted:
         lines.append("  (not measured, estimated with another cell's costs: " + ", ".join(
             f"{k} as {v}" for k, v in est.substituted.items()) + ")")
