@@ -39,6 +39,13 @@ def add_solution_options(parser) -> None:
                    help="same as --solution combined")
 
 
+def add_plot_option(parser) -> None:
+    """``--no-plots`` (dest ``no_plots``): skip ``plots.write_run_plots`` beside the .pos."""
+    parser.add_argument("--no-plots", action="store_true",
+                        help="skip the PNG plots and the Markdown summary beside OUT "
+                             "(apps/plots.py)")
+
+
 def run_command(prog: str, parser, body, argv=None) -> int:
     """Parse ``argv`` (default ``sys.argv[1:]``) with ``parser`` and return ``body(args)``; an
     input error is printed as ``PROG: error: ...`` on stderr and gives exit code 2."""

@@ -41,7 +41,7 @@ import jax
 import numpy as np
 
 import jaxnav
-from jaxnav.apps import car_config, existing_file, plots, run_command
+from jaxnav.apps import add_plot_option, car_config, existing_file, plots, run_command
 from jaxnav.apps import tc_recorded as tc
 from jaxnav.apps.lc_filter import antenna_track
 from jaxnav.core import schema
@@ -157,8 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--smooth", action="store_true",
                    help="forward filter + RTS smoother (RTKPOST's combined solution)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
-    p.add_argument("--no-plots", action="store_true",
-                   help="skip the PNG plots and the Markdown summary beside OUT (apps/plots.py)")
+    add_plot_option(p)
     return p
 
 
@@ -251,7 +250,9 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
           f"GF {rec.prep.slip_counts['gf']}, MW {rec.prep.slip_counts['mw']}")
     rows = []
     if rec.ref_llh is not None:
-        rows = _report(rec, opts, plan, runs)
+        offset = (tc.reference_offset(rec) if opts.reference_offset == "spp_median"
+                  else np.zeros(3))
+        rows = _report(rec, opts, plan, runs, offset)
         _write_table(table_path, rows)
         print(f"  wrote {table_path}")
     print(f"  wrote {out_path}; read + prepare {t_read - t0:.1f} s, filters {t_run - t_read:.1f}"
@@ -260,11 +261,7 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
         outages = [plots.Outage(str(r["id"]), float(r["start_s"]),
                                 float(r["start_s"] + r["length_s"]),
                                 float(r["tight_max_2d_m"])) for r in rows]
-        ref = None
-        if rec.ref_llh is not None:
-            offset = (tc.reference_offset(rec) if opts.reference_offset == "spp_median"
-                      else np.zeros(3))
-            ref = plots.reference_moved(rec.ref_llh, offset)
+        ref = None if rec.ref_llh is None else plots.reference_moved(rec.ref_llh, offset)
         written = plots.write_run_plots(
             out_path, sol, t0_gps_s=rec.t_imu0_gps_s, ref_llh=ref, outages=outages,
             outages_in_solution=False, ref_name="reference track (data.reference)",
@@ -274,9 +271,10 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
     return 0
 
 
-def _report(rec: tc.Recording, opts: tc.TightOptions, plan: tc.OutagePlan, runs: dict):
-    """Print the error summary and return the per-outage rows."""
-    offset = tc.reference_offset(rec) if opts.reference_offset == "spp_median" else np.zeros(3)
+def _report(rec: tc.Recording, opts: tc.TightOptions, plan: tc.OutagePlan, runs: dict,
+            offset: np.ndarray):
+    """Print the error summary against the reference moved by ``offset`` (ENU [m]) and return
+    the per-outage rows."""
     fixed = rec.ref_q == 1
     if opts.reference_offset == "spp_median":
         print(f"  reference offset removed (median SPP - reference over the run, E N U): "

@@ -77,7 +77,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
-from jaxnav.apps import add_solution_options, existing_file, plots, run_command
+from jaxnav.apps import add_plot_option, add_solution_options, existing_file, plots, run_command
 from jaxnav.apps.car_config import (  # noqa: F401  (re-exported: the command's public names)
     SWEEP_MODES,
     UG_M_S2,
@@ -156,8 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep", metavar="DIR", help="also run the outage sweep of [sweep] into DIR")
     p.add_argument("--overwrite", action="store_true", help="replace an existing sweep in DIR")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--no-plots", action="store_true",
-                   help="skip the PNG plots and the Markdown summary beside OUT (apps/plots.py)")
+    add_plot_option(p)
     return p
 
 

@@ -50,7 +50,7 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
-from jaxnav.apps import add_solution_options, existing_file, plots, prep_cache
+from jaxnav.apps import add_plot_option, add_solution_options, existing_file, plots, prep_cache
 from jaxnav.core.gpstime import gps_seconds_to_datetime64
 from jaxnav.filter import ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
@@ -143,8 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     p1c1.add_argument("--no-p1c1", action="store_true",
                       help="use the C/A code as P1 (accepts up to ~1 m of satellite bias)")
     p.add_argument("--out", required=True, help="output RTKLIB .pos file")
-    p.add_argument("--no-plots", action="store_true",
-                   help="skip the PNG plots and the Markdown summary beside OUT (apps/plots.py)")
+    add_plot_option(p)
     p.add_argument("--no-cache", action="store_true",
                    help="read and prepare the files even if the cache of prepared observations "
                         "holds them, and renew the entry ($JAXNAV_CACHE_DIR or ~/.cache/jaxnav;"
