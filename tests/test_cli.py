@@ -151,6 +151,16 @@ def test_tiny_sweep_writes_results_tables_and_plots(tmp_path, goldens, capsys):
     worst = ds["max_2d_m"].sel(satellites_kept=0).mean()
     best = ds["max_2d_m"].sel(satellites_kept=-1).mean()
     assert float(worst) > float(best)  # a complete outage is worse than none
+    # the no-outage reference is selectable by its label, singly or in a list, after a reload
+    from jaxnav.study.store import load_results
+    back = load_results(out / "results.nc")
+    xr.testing.assert_identical(back["max_2d_m"].sel(satellites_kept="all"),
+                                ds["max_2d_m"].sel(satellites_kept=-1))
+    pair = back["max_2d_m"].sel(satellites_kept=["0", "all"])
+    assert list(pair.satellites_kept.values) == [0, -1]
+    assert float(back["max_2d_m"].sel(satellites_kept="all").mean()) == float(best)
+    with pytest.raises(KeyError, match="allowed are integers and 'all'"):
+        back.sel(satellites_kept="none")
     assert (out / "table.md").read_text().count("|") > 10
     goldens.check("tiny_sweep", goldens.numbers_in(out))  # refactors keep the numbers
     # An existing result is never silently overwritten: one line, exit 2 (issue 23: it was a

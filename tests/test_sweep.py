@@ -378,7 +378,7 @@ def test_outage_errors_follow_the_drive_geometry(main_run):
     two = ds.sel(satellites_kept=2).isel(placement=3).max_2d_m
     assert np.all(two.sel(duration=10.0) < 3.0)
     assert np.all(two.sel(duration=30.0) > 10.0)
-    assert np.all(ds.sel(satellites_kept=sw.ALL).max_2d_m < 2.0)
+    assert np.all(ds.sel(satellites_kept="all").max_2d_m < 2.0)
 
 
 def test_traces_are_the_scenarios_errors(main_run):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import xarray as xr
+from xarray.indexes import PandasIndex
 
 import jaxnav
 from jaxnav.study import metrics as mt
@@ -343,7 +344,42 @@ def assemble(plan: Plan, store: _Store, groups, config_hash: str) -> xr.Dataset:
             "placement_kind": cfg.placement.kind,
         }
     )
-    return ds
+    return with_kept_index(ds)
+
+
+class KeptIndex(PandasIndex):
+    """Index of ``satellites_kept`` that also takes the label ``"all"`` (stored as -1, the
+    no-outage reference) and digit strings, so ``ds.sel(satellites_kept="all")`` and
+    ``ds.sel(satellites_kept=[2, "all"])`` work; the coordinate stays int64 on disk."""
+
+    @staticmethod
+    def _label(v):
+        if isinstance(v, str):
+            if v.strip().lower() == "all":
+                return ALL
+            if v.strip().lstrip("-").isdigit():
+                return int(v)
+            raise KeyError(f"satellites_kept label {v!r}: allowed are integers and 'all'")
+        return v
+
+    def sel(self, labels, method=None, tolerance=None):
+        def conv(v):
+            if isinstance(v, (str, int, np.integer)):
+                return self._label(v)
+            if isinstance(v, slice) or isinstance(v, (xr.DataArray, xr.Variable)):
+                return v
+            a = np.asarray(v, dtype=object)
+            return np.vectorize(self._label, otypes=[np.int64])(a) if a.size else v
+
+        return super().sel({k: conv(v) for k, v in labels.items()}, method, tolerance)
+
+
+def with_kept_index(ds: xr.Dataset) -> xr.Dataset:
+    """Give ``satellites_kept`` the :class:`KeptIndex` (label ``"all"`` = -1)."""
+    if "satellites_kept" not in ds.indexes or isinstance(
+            ds.xindexes["satellites_kept"], KeptIndex):
+        return ds
+    return ds.drop_indexes("satellites_kept").set_xindex("satellites_kept", KeptIndex)
 
 
 def netcdf_engine() -> str:
@@ -359,5 +395,6 @@ def netcdf_engine() -> str:
 
 
 def load_results(path: str | os.PathLike) -> xr.Dataset:
-    """Read a sweep's results.nc into memory."""
-    return xr.load_dataset(path, engine=netcdf_engine())
+    """Read a sweep's results.nc into memory, with ``satellites_kept`` selectable by "all"
+    (a plain ``xr.open_dataset`` gives the stored int index, where "all" is -1)."""
+    return with_kept_index(xr.load_dataset(path, engine=netcdf_engine()))
