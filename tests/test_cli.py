@@ -5,6 +5,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 import xarray as xr
 
@@ -161,6 +162,13 @@ def test_tiny_sweep_writes_results_tables_and_plots(tmp_path, goldens, capsys):
     assert float(back["max_2d_m"].sel(satellites_kept="all").mean()) == float(best)
     with pytest.raises(KeyError, match="allowed are integers and 'all'"):
         back.sel(satellites_kept="none")
+    # outage starts also as GPS datetimes: epoch 0 is one interval after the scenario start
+    from jaxnav.core.gpstime import gps_seconds_to_datetime64
+    from jaxnav.sim.constellation import DEFAULT_T0_GPS_S
+    lag = (back.start_s + back.attrs["epoch_dt_s"]).values * 1e9
+    want = gps_seconds_to_datetime64(DEFAULT_T0_GPS_S) + lag.astype("timedelta64[ns]")
+    np.testing.assert_array_equal(back.start_time.values, want)
+    assert "GPS time" in back.start_time.attrs["long_name"]
     assert (out / "table.md").read_text().count("|") > 10
     goldens.check("tiny_sweep", goldens.numbers_in(out))  # refactors keep the numbers
     # An existing result is never silently overwritten: one line, exit 2 (issue 23: it was a

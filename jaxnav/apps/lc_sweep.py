@@ -76,7 +76,8 @@ class DriveFactory:
     def timeline(self, study):
         from jaxnav.study.sweep import Timeline
 
-        return Timeline(self.drive.n_epochs, self.drive.epoch_dt_s)
+        return Timeline(self.drive.n_epochs, self.drive.epoch_dt_s,
+                        t0_gps_s=float(self.drive.time_gps_s[0]))
 
     def build(self, study, mode: str, system: str, seed: int):
         from jaxnav.study.sweep import Problem

@@ -239,8 +239,15 @@ class SimFactory:
         return int(self.geo.slots.system.shape[0])
 
     def timeline(self, study_cfg) -> Timeline:
-        n = int(self.geo.truth_ep.time_s.shape[0]) - 1
-        return Timeline(n, self.cfg.epoch_interval_s, np.asarray(self.geo.truth_ep.event[1:]))
+        t_s = self.geo.truth_ep.time_s  # [n + 1]: the initial state, then the filter epochs
+        return Timeline(int(t_s.shape[0]) - 1, self.cfg.epoch_interval_s,
+                        np.asarray(self.geo.truth_ep.event[1:]),
+                        self.start_gps_s + float(t_s[1]))
+
+    @property
+    def start_gps_s(self) -> float:
+        """GPS time of the scenario start (time_s = 0)."""
+        return float(self.cfg.t0_gps_s)
 
     def ops_for(self, mode: str, system_name: str):
         """The sweep engine's ``FilterOps`` for a (mode, system) group."""

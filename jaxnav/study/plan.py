@@ -27,6 +27,7 @@ class Timeline(NamedTuple):
     n_epochs: int
     epoch_dt_s: float
     labels: np.ndarray | None = None  # [T] sim.trajectory.Event codes (for event placement)
+    t0_gps_s: float | None = None  # GPS time of epoch 0 (None: the source has no clock)
 
 
 class Problem(NamedTuple):

@@ -162,6 +162,10 @@ class ReplayFactory(_RecordedFilter, SimFactory):
         )
         self.ins_grade = t.get("ins_grade", "span_cpt")
 
+    @property
+    def start_gps_s(self) -> float:
+        return gpstime.gps_seconds(self.t0)
+
     # -- the recorded data ------------------------------------------------------------------------
     @functools.cached_property
     def _recorded(self):

@@ -13,6 +13,7 @@ import xarray as xr
 from xarray.indexes import PandasIndex
 
 import jaxnav
+from jaxnav.core import gpstime
 from jaxnav.study import metrics as mt
 from jaxnav.study.config import ALL
 from jaxnav.study.plan import DIMS, Plan
@@ -286,6 +287,12 @@ def assemble(plan: Plan, store: _Store, groups, config_hash: str) -> xr.Dataset:
         "length_s": (("duration", "placement"), plan.lengths * dt,
                      {"units": "s", "long_name": "outage length"}),
     }
+    if plan.timeline.t0_gps_s is not None:
+        t_gps_s = plan.timeline.t0_gps_s + plan.starts * dt
+        coords["start_time"] = (("duration", "placement"), gpstime.gps_seconds_to_datetime64(
+            t_gps_s), {"long_name": "GPS time (GPST, no leap seconds) of the outage's first "
+                       "epoch", "comment": "written as the CF standard calendar; subtract the "
+                       "GPS-UTC leap seconds (18 s since 2017) for UTC"})
     if plan.placement_event is not None:
         coords["placement_event"] = ("placement", np.asarray(plan.placement_event, dtype=object),
                                      {"long_name": "drive event the outage starts on"})
