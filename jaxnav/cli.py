@@ -147,6 +147,9 @@ def _dry_run_text(cfg, plan) -> str:
         f"{est.compile_s:.0f} s, full runs {est.full_s:.0f} s, outage windows {est.eval_s:.0f} s,"
         f" simulation and files {est.other_s:.0f} s; costs measured {costs.MEASURED}, "
         "+-30 % machine drift; more workers divide the windows only)")
+    if len(plan.seeds) > 1:
+        lines.append("  (simulation per realization was measured on a first realization, with "
+                     "the simulator's one-off compilation: many realizations are over-estimated)")
     if cfg.smooth:
         lines.append("  (smooth = true: the RTS smoother's passes are not in the measured costs; "
                      "expect a longer run)")

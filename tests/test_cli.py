@@ -384,6 +384,7 @@ def test_dry_run_prints_the_plan_and_its_estimate(tmp_path, capsys):
     assert "placements      : 3 (grid), starts [s] 120, 160, 200" in out
     assert "scenarios       : 6 per group x 2 group(s)" in out
     assert "sf_ppp/riss as float_ppp/riss" in out  # not measured: said so
+    assert "many realizations are over-estimated" not in out  # one realization: exact
     cfg = sc.load(cfg_path, modes=SimFactory.modes, systems=SimFactory.systems)
     plan = sweep.make_plan(cfg, SimFactory(cfg.scenario_dict).timeline(cfg))
     c = costs.COSTS[("float_ppp", "riss")]
@@ -393,4 +394,7 @@ def test_dry_run_prints_the_plan_and_its_estimate(tmp_path, capsys):
     want += costs.DRIVE_S_PER_S * plan.timeline.n_epochs * plan.timeline.epoch_dt_s
     assert costs.estimate(cfg, plan, 240.0).seconds == pytest.approx(want, rel=1e-12)
     assert f"about {want / 60:.1f} min" in out
+    cfg_path.write_text(TINY.replace("realizations = 1", "realizations = 3"))
+    assert cli.main(["sweep", str(cfg_path), "--dry-run"]) == 0
+    assert "many realizations are over-estimated" in capsys.readouterr().out
     assert list(tmp_path.iterdir()) == [cfg_path]
