@@ -525,6 +525,8 @@ def test_a_second_run_on_the_same_files_reads_them_from_the_cache(tmp_path, caps
 
     first, rows1 = run("a.pos")
     assert "observations from the cache" not in first
+    for step in ("reading ", "reading 1 product file(s)", "preparing", "compiling and running"):
+        assert re.search(rf"  {re.escape(step)}.* \.\.\. \d+\.\d s\n", first), (step, first)
     assert len(list(prep_cache.cache_dir().glob("*.pkl"))) == 1
 
     def no_reading(*a, **k):
@@ -534,6 +536,7 @@ def test_a_second_run_on_the_same_files_reads_them_from_the_cache(tmp_path, caps
     monkeypatch.setattr(app, "read_rinex_obs", no_reading)
     second, rows2 = run("b.pos")
     assert "prepared observations from the cache" in second and rows2 == rows1
+    assert "reading" not in second.split("(or from the cache)", 1)[1]  # no file read
     monkeypatch.setattr(app, "read_rinex_obs", real_reader)
     run("c.pos", "--no-tides")
     assert len(list(prep_cache.cache_dir().glob("*.pkl"))) == 2

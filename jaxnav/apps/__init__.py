@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
+import time
 
 from jaxnav.io.errors import InputError
 
@@ -27,6 +29,33 @@ def existing_file(text: str) -> str:
 #: forward filter + RTS smoother (RTKPOST's names). No "backward": running an INS backwards needs a
 #: reverse-time mechanization, which jaxnav does not have.
 SOLUTIONS = ("forward", "combined")
+
+
+def pos_solution_label(smooth: bool) -> str:
+    """The .pos header's ``solution`` value (RTKPOST's words)."""
+    return "Combined (forward + RTS smoother)" if smooth else "Forward"
+
+
+class Stages:
+    """Progress of a command's long steps: one line per stage with its elapsed seconds, on
+    stdout (nothing when ``quiet``), so reading, preparing and compiling are never silent."""
+
+    def __init__(self, quiet: bool = False):
+        self.quiet = quiet
+
+    @contextlib.contextmanager
+    def __call__(self, what: str):
+        if not self.quiet:
+            print(f"  {what} ...", end="", flush=True)
+        t = time.perf_counter()
+        try:
+            yield
+        except BaseException:
+            if not self.quiet:
+                print(" failed", flush=True)
+            raise
+        if not self.quiet:
+            print(f" {time.perf_counter() - t:.1f} s", flush=True)
 
 
 def add_solution_options(parser) -> None:

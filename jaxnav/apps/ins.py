@@ -41,7 +41,14 @@ import jax
 import numpy as np
 
 import jaxnav
-from jaxnav.apps import add_plot_option, car_config, existing_file, plots, run_command
+from jaxnav.apps import (
+    add_plot_option,
+    car_config,
+    existing_file,
+    plots,
+    pos_solution_label,
+    run_command,
+)
 from jaxnav.apps import tc_recorded as tc
 from jaxnav.apps.lc_filter import antenna_track
 from jaxnav.core import schema
@@ -233,7 +240,7 @@ def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int
                    if cfg.paths.get(k)) + (
             ("pos mode", f"Tightly coupled PPP/INS ({opts.mode} / {cfg.car.imu_errors_states})"),
             ("freqs", "L1+L2"),
-            ("solution", "Combined (forward + RTS smoother)" if args.smooth else "Forward"),
+            ("solution", pos_solution_label(args.smooth)),
             ("elev mask", f"{opts.elevation_mask_deg:.1f} deg"),
             ("navi sys", ",".join(c.upper() if c == "gps" else c.capitalize()
                                   for c in opts.constellations))))

@@ -77,7 +77,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
-from jaxnav.apps import add_plot_option, add_solution_options, existing_file, plots, run_command
+from jaxnav.apps import (
+    add_plot_option,
+    add_solution_options,
+    existing_file,
+    plots,
+    pos_solution_label,
+    run_command,
+)
 from jaxnav.apps.car_config import (  # noqa: F401  (re-exported: the command's public names)
     SWEEP_MODES,
     UG_M_S2,
@@ -224,7 +231,7 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
         info=(("inp file", str(args.imu)), ("inp file", str(args.imu_tag or args.imu + ".tag")),
               ("inp file", str(args.gnss)),
               ("pos mode", f"Loosely coupled INS ({cfg.imu_errors_states}) on the --gnss fixes"),
-              ("solution", "Combined (forward + RTS smoother)" if smooth else "Forward")),
+              ("solution", pos_solution_label(smooth))),
     )
 
     err = np.asarray(mt.enu_errors(jnp.asarray(sol.llh), jnp.asarray(drive.ref_llh)))

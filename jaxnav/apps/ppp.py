@@ -50,7 +50,15 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav import geodesy
-from jaxnav.apps import add_plot_option, add_solution_options, existing_file, plots, prep_cache
+from jaxnav.apps import (
+    Stages,
+    add_plot_option,
+    add_solution_options,
+    existing_file,
+    plots,
+    pos_solution_label,
+    prep_cache,
+)
 from jaxnav.core.gpstime import gps_seconds_to_datetime64
 from jaxnav.filter import ppp_only, tight
 from jaxnav.filter.systems import NavSigmas
@@ -359,8 +367,10 @@ def _main(args, argv, t_start) -> int:
         p1c1_m=p1c1_m,
         ignore_p1c1=args.no_p1c1,
     )
+    stage = Stages(args.quiet)
+
     def read_and_prepare():
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), stage(f"reading {args.obs}"):
             warnings.simplefilter("ignore", FutureWarning)
             obs = read_rinex_obs(
                 args.obs,
@@ -371,14 +381,16 @@ def _main(args, argv, t_start) -> int:
             )
         if args.p1c1_from_obs:
             opt.p1c1_m = prep_mod.p1c1_from_observations(obs)
-        nav = (read_broadcast_ephemeris(args.nav, systems="".join(args.systems)) if args.nav
-               else None)
-        sp3 = read_sp3(args.sp3) if args.sp3 else None
-        clk = read_clk(args.clk, systems=set(args.systems)) if args.clk else None
-        ionex = read_ionex(args.ionex) if args.ionex else None
+        with stage(f"reading {len(inputs) - 1} product file(s)"):
+            nav = (read_broadcast_ephemeris(args.nav, systems="".join(args.systems))
+                   if args.nav else None)
+            sp3 = read_sp3(args.sp3) if args.sp3 else None
+            clk = read_clk(args.clk, systems=set(args.systems)) if args.clk else None
+            ionex = read_ionex(args.ionex) if args.ionex else None
         products = prep_mod.Products(nav=nav, sp3=sp3, clk=clk, ionex=ionex)
-        return obs, prep_mod.prepare_gnss(obs, products, opt,
-                                          static_receiver=args.mode == "static")
+        with stage("preparing (orbits, clocks, corrections per epoch)"):
+            return obs, prep_mod.prepare_gnss(obs, products, opt,
+                                              static_receiver=args.mode == "static")
 
     roles = [("--obs", args.obs), ("--nav", args.nav), *(("--sp3", f) for f in args.sp3),
              ("--clk", args.clk), ("--ionex", args.ionex), ("--dcb", args.dcb)]
@@ -411,11 +423,13 @@ def _main(args, argv, t_start) -> int:
     model = "static" if args.mode == "static" else "random_walk"
     system = ppp_only.GnssOnlySystem(model=model)
     smooth = args.solution == "combined"
-    if smooth:
-        out_fwd, out = run_ppp_smoothed(prep, cfg, system, float(obs.interval_s))
-    else:
-        _, out = run_ppp(prep, cfg, system, float(obs.interval_s))
-    jax.block_until_ready(out.llh)
+    with stage(f"compiling and running the filter over {len(prep.time_gps_s)} epochs"
+               + (" and the smoother" if smooth else "")):
+        if smooth:
+            out_fwd, out = run_ppp_smoothed(prep, cfg, system, float(obs.interval_s))
+        else:
+            _, out = run_ppp(prep, cfg, system, float(obs.interval_s))
+        jax.block_until_ready(out.llh)
     t_run = time.time()
 
     # RTKLIB's quality flag: PPP for a carrier-phase solution, "single" for code only.
@@ -430,7 +444,7 @@ def _main(args, argv, t_start) -> int:
     info = [("inp file", f) for f in inputs] + [
         ("pos mode", f"PPP {args.mode.capitalize()} ({mode})"),
         ("freqs", "L1" if args.freq == "single" else "L1+L2"),
-        ("solution", "Combined (forward + RTS smoother)" if smooth else "Forward"),
+        ("solution", pos_solution_label(smooth)),
         ("elev mask", f"{args.elevation_mask:.1f} deg"),
         ("ionos opt", {"ionex": "IONEX TEC", "klobuchar": "Broadcast",
                        "none": "Off"}[opt.iono] if args.freq == "single" else "Iono-Free LC"),
