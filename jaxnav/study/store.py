@@ -373,7 +373,7 @@ class KeptIndex(PandasIndex):
         def conv(v):
             if isinstance(v, (str, int, np.integer)):
                 return self._label(v)
-            if isinstance(v, slice) or isinstance(v, (xr.DataArray, xr.Variable)):
+            if isinstance(v, (slice, xr.DataArray, xr.Variable)):
                 return v
             a = np.asarray(v, dtype=object)
             return np.vectorize(self._label, otypes=[np.int64])(a) if a.size else v
