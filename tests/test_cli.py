@@ -201,6 +201,52 @@ def test_real_data_commands_are_wired(command, capsys):
     assert f"jaxnav {command}" in capsys.readouterr().out
 
 
+def _all_parsers():
+    """(name, parser) of ``jaxnav`` and each subcommand, delegated ones through their modules."""
+    import argparse
+    import importlib
+
+    top = cli.build_parser()
+    yield "jaxnav", top
+    sub = next(a for a in top._actions if isinstance(a, argparse._SubParsersAction))
+    for name, parser in sub.choices.items():
+        if name in cli.DELEGATED:
+            parser = importlib.import_module(f"jaxnav.apps.{name}").build_parser()
+        yield name, parser
+
+
+# The words that give a number its unit in a help text.
+UNIT_WORDS = ("[", "second", "degree", " s ", " s)", " s of", "iterations", "number")
+
+
+def test_every_option_says_what_it_does_its_default_and_its_unit():
+    """Each subcommand's --help: a description, a help text on every option, the default of
+    every option that has one, and the unit of every numeric option (issue 22)."""
+    import argparse
+
+    missing = []
+    for name, parser in _all_parsers():
+        if not parser.description and name != "jaxnav":
+            missing.append(f"{name}: no description")
+        for a in parser._actions:
+            if isinstance(a, (argparse._HelpAction, argparse._VersionAction,
+                              argparse._SubParsersAction)):
+                continue
+            flag = a.option_strings[0] if a.option_strings else a.dest
+            text = (a.help or "").replace("\n", " ")
+            if not text:
+                missing.append(f"{name} {flag}: no help")
+                continue
+            default = a.default
+            if a.option_strings and default not in (None, False, [], argparse.SUPPRESS) \
+                    and not isinstance(a, argparse._StoreConstAction) \
+                    and "default" not in text.lower():
+                missing.append(f"{name} {flag}: default {default!r} not said")
+            if a.type in (float, int) and not any(w in text for w in UNIT_WORDS):
+                missing.append(f"{name} {flag}: no unit")
+    assert not missing, "\n".join(missing)
+
+
 def test_list_prints_what_the_registries_hold(capsys):
     from jaxnav.gnss import modes
     from jaxnav.sim import sensors

@@ -1,27 +1,31 @@
-"""The user tutorial (experiments/tutorial_outage_study.py) runs end to end in its --quick form.
+"""The user tutorial (jaxnav/apps/notebooks/outage_study.py) as a user gets it and runs it.
 
-The script form of the notebook runs in this process (``runpy``, with the command line a user
-types, ``--quick --out DIR``), so the tutorial cannot rot: it completes, writes a sweep Dataset
-with the study's axes and physically sensible numbers, a report whose table and single-run check
-agree with that Dataset, and every figure it links drawn.
+``jaxnav tutorial --out DIR`` copies the notebook out of the package (script and .ipynb), then the
+copy runs in this process (``runpy``) from inside DIR with the command line a user types,
+``--quick`` and no ``--out``, so the tutorial cannot rot: it completes, writes its results into
+``tutorial_results/`` of the current folder (never the project's committed rendering), a sweep
+Dataset with the study's axes and physically sensible numbers, a report whose table and
+single-run check agree with that Dataset, and every figure it links drawn.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import re
 import runpy
 import sys
-from pathlib import Path
 
+import nbformat
 import numpy as np
 import pytest
 
 import jaxnav  # noqa: F401
+from jaxnav import cli
+from jaxnav.apps import tutorial
 from jaxnav.study import sweep
 
-ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "experiments" / "tutorial_outage_study.py"
+SCRIPT = tutorial.NOTEBOOKS / "outage_study.py"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 # (dist_by_duration.png only for studies of two or more durations: the full tutorial, not the
 # quick form the tests run)
@@ -30,16 +34,55 @@ FIGURES = {"drive.png", "error_growth.png", "dist_by_satellites.png", "single_ru
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("tutorial")
-    argv = sys.argv
-    sys.argv = [str(SCRIPT), "--quick", "--out", str(out)]
+    folder = tmp_path_factory.mktemp("tutorial")
+    assert cli.main(["tutorial", "--out", str(folder)]) == 0
+    argv, cwd = sys.argv, os.getcwd()
+    sys.argv = [str(folder / "outage_study.py"), "--quick"]
+    os.chdir(folder)
     try:
-        runpy.run_path(str(SCRIPT), run_name="__main__")
+        runpy.run_path(sys.argv[0], run_name="__main__")
     finally:
         sys.argv = argv
+        os.chdir(cwd)
+    out = folder / "tutorial_results"
     sweeps = list(out.glob("sweep-*/results.nc"))
     assert len(sweeps) == 1, sweeps
     return out, (out / "report.md").read_text(), sweeps[0]
+
+
+def test_tutorial_command_writes_the_script_and_the_notebook(tmp_path, capsys):
+    out = tmp_path / "new" / "tut"
+    assert cli.main(["tutorial", "--out", str(out)]) == 0
+    assert (out / "outage_study.py").read_text() == SCRIPT.read_text()
+    nb = nbformat.read(out / "outage_study.ipynb", as_version=4)
+    nbformat.validate(nb)
+    kinds = [c.cell_type for c in nb.cells]
+    text = SCRIPT.read_text()
+    assert kinds.count("markdown") == text.count("# %% [markdown]")
+    assert kinds.count("code") == text.count("\n# %%\n")
+    assert "run_sweep" in "".join(c.source for c in nb.cells if c.cell_type == "code")
+    assert str(out / "outage_study.ipynb") in capsys.readouterr().out
+    # A second call changes nothing without --overwrite: exit 2, one line naming the file.
+    (out / "outage_study.py").write_text("# my edits\n")
+    assert cli.main(["tutorial", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "outage_study.py exists; pass --overwrite" in err and "Traceback" not in err
+    assert (out / "outage_study.py").read_text() == "# my edits\n"
+    assert cli.main(["tutorial", "--out", str(out), "--overwrite"]) == 0
+    assert (out / "outage_study.py").read_text() == SCRIPT.read_text()
+
+
+def test_tutorial_command_without_jupytext_writes_the_script(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(tutorial, "_jupytext", lambda: None)
+    assert cli.main(["tutorial", "--out", str(tmp_path)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["outage_study.py"]
+    assert 'pip install "jaxnav[notebook]"' in capsys.readouterr().out
+
+
+def test_tutorial_command_rejects_a_file_as_folder(tmp_path, capsys):
+    (tmp_path / "f").write_text("")
+    assert cli.main(["tutorial", "--out", str(tmp_path / "f")]) == 2
+    assert "is a file, not a folder" in capsys.readouterr().err
 
 
 def test_outputs_match_their_golden(quick_run, goldens):

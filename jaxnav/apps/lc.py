@@ -146,7 +146,7 @@ def sigma_ratios(err_enu: np.ndarray, sd_neu_m: np.ndarray) -> np.ndarray:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("--imu", required=True, type=existing_file,
-                   help="IMU CSV log (acc [g], gyro, tick [ms])")
+                   help="IMU CSV log (acc [g], gyro [deg/s unless [imu] gyro_unit], tick [ms])")
     p.add_argument("--imu-tag", type=existing_file,
                    help="RTKLIB time-tag file of the IMU log (default IMU.tag)")
     p.add_argument("--gnss", required=True, type=existing_file,
@@ -154,15 +154,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", required=True, type=existing_file, help="car configuration TOML")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--outages", type=existing_file,
-                   help="schedule file id,start_s,length_s (start after 1st IMU)")
+                   help="schedule CSV id,start_s,length_s [s] (start after the first IMU "
+                        "sample; default: no outages)")
     g.add_argument("--outage-grid", type=parse_grid, metavar="START:STEP:LENGTH",
-                   help="outages START, START+STEP, ... of LENGTH seconds")
-    p.add_argument("--duration", type=float, help="process only the first DURATION s of the log")
+                   help="outages at START, START+STEP, ... [s after the first IMU sample] of "
+                        "LENGTH seconds each")
+    p.add_argument("--duration", type=float,
+                   help="process only the first DURATION s of the log (default: all of it)")
     p.add_argument("--out", required=True, help="output .pos (INS at the antenna)")
     add_solution_options(p)
-    p.add_argument("--sweep", metavar="DIR", help="also run the outage sweep of [sweep] into DIR")
+    p.add_argument("--sweep", metavar="DIR",
+                   help="also run the outage sweep of the config's [sweep] table into DIR "
+                        "(results.nc, tables)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing sweep in DIR")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true",
+                   help="print only errors and the summary (no progress lines or bar)")
     add_plot_option(p)
     return p
 

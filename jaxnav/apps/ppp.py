@@ -101,12 +101,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--obs", required=True, type=existing_file,
                    help="RINEX 2/3 observations (.rnx/.crx, .gz)")
     p.add_argument("--nav", type=existing_file,
-                   help="RINEX 3 navigation file (broadcast orbits, Klobuchar, TGD)")
+                   help="RINEX 3 navigation file (broadcast orbits, Klobuchar, TGD); needed "
+                        "without --sp3 and for --freq single")
     p.add_argument("--sp3", nargs="+", default=[], type=existing_file,
-                   help="SP3 orbit file(s), joined")
-    p.add_argument("--clk", type=existing_file, help="RINEX clock file (precise satellite clocks)")
+                   help="SP3 orbit file(s), joined in time order (default: broadcast orbits "
+                        "from --nav)")
+    p.add_argument("--clk", type=existing_file,
+                   help="RINEX clock file (precise satellite clocks; default: the SP3 clocks, "
+                        "else broadcast)")
     p.add_argument("--ionex", type=existing_file,
-                   help="IONEX maps for the single-frequency ionosphere")
+                   help="IONEX maps for the single-frequency ionosphere (default: Klobuchar "
+                        "from --nav)")
     p.add_argument("--mode", choices=("static", "kinematic"), required=True,
                    help="static: one position for the whole file; kinematic: a position per "
                         "epoch (random walk, 100 m/sqrt(s))")
@@ -116,10 +121,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--phase", action="store_true",
                    help="with --freq single: add the L1 carrier phase (sf_ppp)")
     p.add_argument("--systems", type=_parse_systems, default=("G",),
-                   help="constellation letters, e.g. G or G,E (default G)")
-    p.add_argument("--start", help="first epoch, ISO GPST (e.g. 2020-06-25T00:00:00)")
-    p.add_argument("--duration", type=float, help="seconds to process from --start")
-    p.add_argument("--ref", type=_parse_xyz, help="reference ECEF X,Y,Z [m] for the statistics")
+                   help="constellation letters: G (GPS), R, E, C, J; e.g. G or G,E (default G)")
+    p.add_argument("--start", help="first epoch, ISO GPST (e.g. 2020-06-25T00:00:00; default: "
+                                 "the file's first)")
+    p.add_argument("--duration", type=float,
+                   help="seconds to process from --start (default: to the end of the file)")
+    p.add_argument("--ref", type=_parse_xyz,
+                   help="reference ECEF X,Y,Z [m] for the statistics (default: the final "
+                        "static solution, or in kinematic mode the mean after --rms-after)")
     p.add_argument(
         "--ppp-mode",
         choices=ppp_modes.MODES,
@@ -131,7 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--rms-after",
         type=float,
         default=3600.0,
-        help="RMS over epochs this many seconds after the start (default 3600)",
+        help="RMS over epochs this many seconds [s] after the start (default 3600)",
     )
     p.add_argument("--no-windup", action="store_true",
                    help="do not correct the carrier phase wind-up (on by default)")

@@ -213,12 +213,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", required=True,
                    help=f"comma-separated [section].key to fit, of: {', '.join(TUNABLE)}")
     p.add_argument("--out", required=True, help="tuned configuration TOML to write")
-    p.add_argument("--duration", type=float, help="fit on the first DURATION s of the log only")
+    p.add_argument("--duration", type=float,
+                   help="fit on the first DURATION s of the log only (default: all of it)")
     p.add_argument("--starts", default="1,0.5,2",
-                   help="start factors applied to every parameter (default 1,0.5,2)")
-    p.add_argument("--max-steps", type=int, default=40, help="L-BFGS iterations per start")
+                   help="comma-separated start factors, each multiplying every parameter's "
+                        "configured value: one fit per factor (default 1,0.5,2)")
+    p.add_argument("--max-steps", type=int, default=40,
+                   help="L-BFGS iterations per start (default 40)")
     p.add_argument("--outage-grid", type=parse_grid, metavar="START:STEP:LENGTH",
-                   help="withhold the GNSS of these outages in the fit (module docstring)")
+                   help="withhold the GNSS at START, START+STEP, ... [s] for LENGTH s in the "
+                        "fit (module docstring)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     return p
 

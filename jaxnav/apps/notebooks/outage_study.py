@@ -21,9 +21,11 @@
 # over a simulated drive, every cell run through the same filter, many thousands at once.
 #
 # This notebook defines a small study, runs it, reads the results and looks at one run in
-# detail. It also runs as a script: `python experiments/tutorial_outage_study.py [--quick]
-# [--out DIR]` writes `report.md` and the figures into `DIR` (default
-# `experiments/results/tutorial_outage_study/`). `--quick` shrinks everything for the tests.
+# detail. `jaxnav tutorial --out DIR` copies it out of the installed package, as this script
+# and (with `pip install "jaxnav[notebook]"`) as `outage_study.ipynb`. It also runs as a
+# script: `python outage_study.py [--quick] [--out DIR]` writes `report.md` and the figures
+# into `DIR` (default `tutorial_results/` in the current folder). `--quick` shrinks everything
+# for the tests.
 
 # %%
 import argparse
@@ -51,9 +53,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 ap = argparse.ArgumentParser(description="jaxnav outage-study tutorial")
 ap.add_argument("--quick", action="store_true", help="tiny study (what the tests run)")
-ap.add_argument("--out", type=Path,
-                default=Path(__file__).resolve().parent / "results" / "tutorial_outage_study"
-                if "__file__" in globals() else Path("results/tutorial_outage_study"))
+# (relative to the current folder: in Jupyter the notebook's own; never the project's committed
+# rendering, experiments/results/tutorial_outage_study/, which is written with an explicit --out)
+ap.add_argument("--out", type=Path, default=Path("tutorial_results"),
+                help="folder of report.md, the figures and the sweep (default tutorial_results)")
 # Inside Jupyter sys.argv holds the kernel's arguments: ignore them (and unknown ones anyway).
 args, _ = ap.parse_known_args([] if IN_JUPYTER else sys.argv[1:])
 OUT = args.out
@@ -374,8 +377,8 @@ REPORT = [
     ("Run", f"{st['scenarios']} scenarios, sweep {t_sweep:.0f} s, notebook {wall:.0f} s"
      f"{' (--quick: tiny study, numbers not meaningful)' if args.quick else ''}."),
 ]
-text = ("# jaxnav tutorial: an outage study\n\nRendered output of "
-        "`experiments/tutorial_outage_study.py` (the notebook explains each step).\n\n"
+text = ("# jaxnav tutorial: an outage study\n\nRendered output of the tutorial notebook "
+        "(`jaxnav tutorial --out DIR` writes it; the notebook explains each step).\n\n"
         + "\n\n".join(f"## {h}\n\n{body.strip()}" for h, body in REPORT) + "\n")
 (OUT / "report.md").write_text(text)
 print(f"wrote {OUT / 'report.md'} ({wall:.0f} s)")
