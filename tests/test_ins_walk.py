@@ -165,6 +165,11 @@ def walk(tmp_path_factory):
 @pytest.mark.slow
 def test_tight_coupling_on_the_raw_walk_is_within_2_m_without_outages(walk):
     out, stdout, _, _ = walk
+    for step in (r"decoding the UBX log gnss_1730\.ubx, .*; preparing the observations",
+                 r"building the tight filter and its inputs",
+                 r"compiling and running the tight filter and the smoother",
+                 r"compiling and running the loose filter \(tight vs loose\)"):
+        assert re.search(rf"^  {step} \.\.\. \d+\.\d s$", stdout, re.MULTILINE), step
     m = re.search(r"tight_fwd no outage: horizontal RMS ([\d.]+) m over the (\d+) fixed",
                   stdout)
     assert m, stdout

@@ -100,6 +100,10 @@ def _window(t_rel, start, length):
 
 def test_command_runs_and_flags_the_outage_epochs(run, goldens):
     assert run["rc"] == 0
+    # the long steps say what they do and how long they took (apps.Stages)
+    for step in (r"reading the IMU log imu_1934\.csv and the GNSS track gnss_1934_sf\.pos",
+                 r"building the filter and its inputs", r"compiling and running the filter"):
+        assert re.search(rf"^  {step} \.\.\. \d+\.\d s$", run["text"], re.MULTILINE), step
     sol, t = run["sol"], run["t_rel"]
     # refactors keep the numbers (tests/goldens/outputs.py): the solution in metres from RTK
     goldens.check("car_drive_lc", {"enu_m": _enu_error(sol.llh, run["ref_llh"]),

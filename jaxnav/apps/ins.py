@@ -42,6 +42,7 @@ import numpy as np
 
 import jaxnav
 from jaxnav.apps import (
+    Stages,
     add_plot_option,
     car_config,
     existing_file,
@@ -164,6 +165,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--smooth", action="store_true",
                    help="forward filter + RTS smoother (RTKPOST's combined solution)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.add_argument("--quiet", action="store_true",
+                   help="print only errors and the summary (no progress lines)")
     add_plot_option(p)
     return p
 
@@ -198,7 +201,7 @@ def _loose(cfg: InsConfig, args, sched) -> int:
     lc_args = argparse.Namespace(
         imu=cfg.paths["imu"], imu_tag=cfg.paths.get("imu_tag"), gnss=cfg.paths["gnss_pos"],
         config=str(cfg.path), outages=None, outage_grid=None, duration=None, out=args.out,
-        sweep=None, overwrite=args.overwrite, quiet=True, no_plots=args.no_plots,
+        sweep=None, overwrite=args.overwrite, quiet=args.quiet, no_plots=args.no_plots,
         solution="combined" if args.smooth else "forward")
     return lc.run(lc_args, cfg.car, sched)
 
@@ -206,26 +209,33 @@ def _loose(cfg: InsConfig, args, sched) -> int:
 def _tight(cfg: InsConfig, args, sched, out_path: Path, table_path: Path) -> int:
     t0 = time.perf_counter()
     opts = cfg.tight
-    rec = tc.load_recording(cfg.car, opts, cfg.paths, sched)
-    plan = tc.plan_outages(rec, sched) if sched is not None else tc.plan_outages(
-        rec, ot.Schedule((), np.zeros(0), np.zeros(0), np.zeros(0, np.int64)))
-    keeps = tc.keep_masks(rec, plan)
+    stage = Stages(args.quiet)
+    with stage(f"decoding the UBX log {Path(cfg.paths['ubx']).name}, the IMU log and the "
+               "broadcast ephemerides; preparing the observations"):
+        rec = tc.load_recording(cfg.car, opts, cfg.paths, sched)
+        plan = tc.plan_outages(rec, sched) if sched is not None else tc.plan_outages(
+            rec, ot.Schedule((), np.zeros(0), np.zeros(0), np.zeros(0, np.int64)))
+        keeps = tc.keep_masks(rec, plan)
     t_read = time.perf_counter()
-    tf, carry, inputs = tc.build_tight(cfg.car, opts, rec)
-    if args.smooth:
-        fwd, out = tc.run_tight_smoothed(tf, carry, inputs, keeps)
-    else:
-        out = tc.run_tight(tf, carry, inputs, keeps)
+    with stage("building the tight filter and its inputs"):
+        tf, carry, inputs = tc.build_tight(cfg.car, opts, rec)
+    with stage("compiling and running the tight filter"
+               + (" and the smoother" if args.smooth else "")):
+        if args.smooth:
+            fwd, out = tc.run_tight_smoothed(tf, carry, inputs, keeps)
+        else:
+            out = tc.run_tight(tf, carry, inputs, keeps)
+        jax.block_until_ready(out.llh)
     ant = np.asarray(antenna_track(tf.system.lever_b, out))
     runs = {"tight": (ant, out.n_sat)}
     if args.smooth:
         runs["tight_fwd"] = (np.asarray(antenna_track(tf.system.lever_b, fwd)), fwd.n_sat)
     if opts.compare_loose:
-        cf, c_carry, c_inputs = tc.build_loose(cfg.car, opts, rec)
-        lo = tc.run_loose(cf, c_carry, c_inputs, keeps)
-        runs["loose"] = (np.asarray(antenna_track(cf.lc.system.lever_b, lo.lc)),
-                         lo.fix.pos_valid)
-    jax.block_until_ready(out.llh)
+        with stage("compiling and running the loose filter (tight vs loose)"):
+            cf, c_carry, c_inputs = tc.build_loose(cfg.car, opts, rec)
+            lo = tc.run_loose(cf, c_carry, c_inputs, keeps)
+            runs["loose"] = (np.asarray(antenna_track(cf.lc.system.lever_b, lo.lc)),
+                             lo.fix.pos_valid)
     t_run = time.perf_counter()
 
     sol = tc.pos_solution(rec, ant[0], out.P_nav[0], out.n_sat[0],

@@ -78,6 +78,7 @@ import numpy as np
 
 import jaxnav  # noqa: F401  (float64)
 from jaxnav.apps import (
+    Stages,
     add_plot_option,
     add_solution_options,
     existing_file,
@@ -206,23 +207,28 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
         order = np.argsort(sched.start_s)
         if np.any(sched.start_s[order][1:] < (sched.start_s + sched.length_s)[order][:-1]):
             raise ValueError("the outages of one loose run must not overlap")
-    drive = load_drive(args.imu, args.imu_tag, args.gnss, cfg, duration_s=args.duration)
+    stage = Stages(getattr(args, "quiet", False))
+    with stage(f"reading the IMU log {Path(args.imu).name} and the GNSS track "
+               f"{Path(args.gnss).name}"):
+        drive = load_drive(args.imu, args.imu_tag, args.gnss, cfg, duration_s=args.duration)
     if args.outage_grid is not None:
         sched = grid_schedule(drive, *args.outage_grid)
     plan = plan_outages(drive, sched) if sched is not None else None
     t_read = time.perf_counter()
 
-    lf = build_filter(cfg, drive)
-    carry = initial_carry(cfg, lf, drive)
-    withheld = plan.withheld if plan is not None else np.zeros(drive.n_epochs, bool)
-    inputs = epoch_inputs(cfg, drive, withheld)
+    with stage("building the filter and its inputs"):
+        lf = build_filter(cfg, drive)
+        carry = initial_carry(cfg, lf, drive)
+        withheld = plan.withheld if plan is not None else np.zeros(drive.n_epochs, bool)
+        inputs = epoch_inputs(cfg, drive, withheld)
     smooth = getattr(args, "solution", "forward") == "combined"
-    if smooth:
-        out_fwd, out = run_smoothed(lf, carry, inputs)
-    else:
-        _, out = run_filter(lf, carry, inputs)
-        out_fwd = out
-    jax.block_until_ready(out)
+    with stage("compiling and running the filter" + (" and the smoother" if smooth else "")):
+        if smooth:
+            out_fwd, out = run_smoothed(lf, carry, inputs)
+        else:
+            _, out = run_filter(lf, carry, inputs)
+            out_fwd = out
+        jax.block_until_ready(out)
     t_run = time.perf_counter()
     sol = solution_pos(drive, lf, out, withheld)
     pos_io.write_pos(
