@@ -54,14 +54,18 @@ def kept_label(k) -> str:
     return "all" if int(k) == ALL else str(int(k))
 
 
-def _frame(ds: xr.Dataset, var: str) -> pd.DataFrame:
-    """Long form: one row per scenario, the dimension values plus length_s."""
-    da = ds[var]
-    if "solution" in da.dims:  # pooling forward and smoothed would mix two estimators
-        raise ValueError(f"{var!r} has a 'solution' axis; take one solution_views(ds) entry")
-    if "enu" in da.dims:
-        raise ValueError(f"{var!r} has an 'enu' axis; pick one component or a scalar metric")
-    df = da.to_dataframe(name=var).reset_index()
+def _frame(ds: xr.Dataset, variables: str | Sequence[str]) -> pd.DataFrame:
+    """Long form: one row per scenario, the dimension values plus length_s, and one column per
+    variable (one frame for all of them: their dimensions are the scenario axes)."""
+    names = [variables] if isinstance(variables, str) else list(variables)
+    for var in names:
+        dims = ds[var].dims
+        if "solution" in dims:  # pooling forward and smoothed would mix two estimators
+            raise ValueError(f"{var!r} has a 'solution' axis; take one solution_views(ds) entry")
+        if "enu" in dims:
+            raise ValueError(f"{var!r} has an 'enu' axis; pick one component or a scalar metric")
+    dims = list(dict.fromkeys(d for var in names for d in ds[var].dims))  # the first's order
+    df = ds[names].to_dataframe(dim_order=dims).reset_index()
     if "length_s" in ds.coords and "length_s" not in df:
         length = ds["length_s"].to_dataframe().reset_index()
         df = df.merge(length[["duration", "placement", "length_s"]], on=["duration", "placement"])
@@ -232,9 +236,7 @@ def table_summary(ds: xr.Dataset) -> pd.DataFrame:
     from scipy.stats import chi2
 
     cols = ["max_2d_m", "pct_of_distance", "reconv_s", "reconverged", "nees_pos"]
-    df = _frame(ds, cols[0])
-    for c in cols[1:]:
-        df[c] = _frame(ds, c)[c].to_numpy()
+    df = _frame(ds, cols)
     df["duration_s"] = df["length_s"] if (ds["duration"] < 0).any() else df["duration"]
     rows = []
     for key, g in df.groupby(["system", "duration_s", "satellites_kept", "mode"], sort=False):
