@@ -267,7 +267,8 @@ def _parallel_options(p):
                         f"(default, or $JAXNAV_WORKERS): every core, {default_workers()}, for "
                         f"studies of {AUTO_MIN_SCENARIOS:,} scenarios or more, else 1")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                   help="run the chunks on a running Dask cluster (docs/parallel.md)")
+                   help="run the chunks on a running Dask cluster (docs/parallel.md; default: "
+                        "this machine, --workers)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -327,7 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
         ("tune", "fit a car configuration's noise figures to a recorded drive by maximum "
                  "likelihood (see `jaxnav tune --help`)"),
         ("tutorial", "copy the tutorial notebook (an outage study end to end) into a folder, "
-                     "as .py and .ipynb (see `jaxnav tutorial --help`)"),
+                     "as .py and, with jupytext, .ipynb (see `jaxnav tutorial --help`)"),
     ):
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)

@@ -216,7 +216,7 @@ def _all_parsers():
 
 
 # The words that give a number its unit in a help text.
-UNIT_WORDS = ("[", "second", "degree", " s ", " s)", " s of", "iterations", "number")
+UNIT_WORDS = ("[", "second", "degree", " s ", " s)", " s of", "iterations")
 
 
 def test_every_option_says_what_it_does_its_default_and_its_unit():

@@ -250,8 +250,10 @@ starts_s = [120.0]
 length_s = 15.0
 satellites_kept = [0]
 ''')
-    code, _, err = _run(["--config", str(cfg), "--out", str(tmp_path / "ins.pos")])
+    code, stdout, err = _run(["--config", str(cfg), "--out", str(tmp_path / "ins.pos"),
+                              "--quiet"])
     assert code == 0, err
+    assert " ... " not in stdout  # --quiet: no progress lines (jaxnav lc's pipeline prints them)
     sched = tmp_path / "s.csv"
     sched.write_text("id,start_s,length_s\nt120k0,120.0,15.0\n")
     from jaxnav.apps import lc

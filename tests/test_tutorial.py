@@ -15,8 +15,8 @@ import os
 import re
 import runpy
 import sys
+from pathlib import Path
 
-import nbformat
 import numpy as np
 import pytest
 
@@ -51,6 +51,7 @@ def quick_run(tmp_path_factory):
 
 
 def test_tutorial_command_writes_the_script_and_the_notebook(tmp_path, capsys):
+    nbformat = pytest.importorskip("nbformat", reason="jupytext (the notebook extra) absent")
     out = tmp_path / "new" / "tut"
     assert cli.main(["tutorial", "--out", str(out)]) == 0
     assert (out / "outage_study.py").read_text() == SCRIPT.read_text()
@@ -83,6 +84,29 @@ def test_tutorial_command_rejects_a_file_as_folder(tmp_path, capsys):
     (tmp_path / "f").write_text("")
     assert cli.main(["tutorial", "--out", str(tmp_path / "f")]) == 2
     assert "is a file, not a folder" in capsys.readouterr().err
+    # a folder where the notebook goes, even with --overwrite: one line, exit 2
+    (tmp_path / "d" / "outage_study.py").mkdir(parents=True)
+    assert cli.main(["tutorial", "--out", str(tmp_path / "d"), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"jaxnav tutorial: cannot write into {tmp_path / 'd'}: ")
+    assert "outage_study.py" in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_editing_a_notebook_keeps_the_source_hash(tmp_path, monkeypatch):
+    """Stored sweeps and prepared-observation caches are keyed by the source hash: the tutorial
+    notebooks are documents, so their edits must not change it; any module's edit must."""
+    import shutil
+
+    copy = tmp_path / "jaxnav"
+    shutil.copytree(Path(jaxnav.__file__).parent, copy,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(jaxnav, "__file__", str(copy / "__init__.py"))
+    digest = sweep.source_hash.__wrapped__
+    before = digest()
+    (copy / "apps" / "notebooks" / "outage_study.py").write_text("# edited prose\n")
+    assert digest() == before
+    (copy / "apps" / "tutorial.py").write_text("# edited code\n")
+    assert digest() != before
 
 
 def test_outputs_match_their_golden(quick_run, goldens):

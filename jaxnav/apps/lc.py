@@ -147,7 +147,8 @@ def sigma_ratios(err_enu: np.ndarray, sd_neu_m: np.ndarray) -> np.ndarray:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("--imu", required=True, type=existing_file,
-                   help="IMU CSV log (acc [g], gyro [deg/s unless [imu] gyro_unit], tick [ms])")
+                   help="IMU CSV log (acc [g], gyro [deg/s], tick [ms]; other units: the "
+                        "config's [imu] accel_unit, gyro_unit)")
     p.add_argument("--imu-tag", type=existing_file,
                    help="RTKLIB time-tag file of the IMU log (default IMU.tag)")
     p.add_argument("--gnss", required=True, type=existing_file,
@@ -159,7 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "sample; default: no outages)")
     g.add_argument("--outage-grid", type=parse_grid, metavar="START:STEP:LENGTH",
                    help="outages at START, START+STEP, ... [s after the first IMU sample] of "
-                        "LENGTH seconds each")
+                        "LENGTH seconds each (default: no outages)")
     p.add_argument("--duration", type=float,
                    help="process only the first DURATION s of the log (default: all of it)")
     p.add_argument("--out", required=True, help="output .pos (INS at the antenna)")

@@ -121,11 +121,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--phase", action="store_true",
                    help="with --freq single: add the L1 carrier phase (sf_ppp)")
     p.add_argument("--systems", type=_parse_systems, default=("G",),
-                   help="constellation letters: G (GPS), R, E, C, J; e.g. G or G,E (default G)")
-    p.add_argument("--start", help="first epoch, ISO GPST (e.g. 2020-06-25T00:00:00; default: "
-                                 "the file's first)")
+                   help="constellation letters: G (GPS), R (GLONASS), E (Galileo); e.g. G or G,E "
+                        "(default G)")
+    p.add_argument("--start", help="first epoch, ISO GPST (e.g. 2020-06-25T00:00:00); give it "
+                                 "with --duration (default, neither: the whole file)")
     p.add_argument("--duration", type=float,
-                   help="seconds to process from --start (default: to the end of the file)")
+                   help="seconds to process from --start; give it with --start (default, "
+                        "neither: the whole file)")
     p.add_argument("--ref", type=_parse_xyz,
                    help="reference ECEF X,Y,Z [m] for the statistics (default: the final "
                         "static solution, or in kinematic mode the mean after --rms-after)")

@@ -222,7 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="L-BFGS iterations per start (default 40)")
     p.add_argument("--outage-grid", type=parse_grid, metavar="START:STEP:LENGTH",
                    help="withhold the GNSS at START, START+STEP, ... [s] for LENGTH s in the "
-                        "fit (module docstring)")
+                        "fit (default: none withheld; module docstring)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     return p
 

@@ -79,6 +79,10 @@ def main(argv=None) -> int:
     except (FileExistsError, NotADirectoryError) as e:
         print(f"jaxnav tutorial: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # a folder we may not write to, a folder in a notebook's place, ...
+        print(f"jaxnav tutorial: cannot write into {args.out}: {e.strerror or e}"
+              + (f" ({e.filename})" if e.filename else ""), file=sys.stderr)
+        return 2
     for path in written:
         print(f"wrote {path}")
     script = next(p for p in written if p.suffix == ".py")

@@ -315,10 +315,14 @@ def _devices(devices) -> list:
 @functools.cache
 def source_hash() -> str:
     """SHA-256 (16 hex digits) of jaxnav's own source files: part of a sweep's config hash, so
-    a resumed sweep never mixes chunks computed by two versions of the code."""
+    a resumed sweep never mixes chunks computed by two versions of the code. The tutorial
+    notebooks (``apps/notebooks/``) are documents that no sweep runs: left out, so editing their
+    prose does not invalidate every stored sweep and prepared-observation cache."""
     root = Path(jaxnav.__file__).parent
     h = hashlib.sha256()
     for f in sorted(root.rglob("*.py")):
+        if f.parent == root / "apps" / "notebooks":
+            continue
         h.update(f.relative_to(root).as_posix().encode())
         h.update(f.read_bytes())
     return h.hexdigest()[:16]
