@@ -320,16 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "IMU grades and odometers; drives: simulated drive styles")
     p.set_defaults(func=_list)
 
-    for name, text in (
-        ("ppp", "post-processed PPP on RINEX data (see `jaxnav ppp --help`)"),
-        ("lc", "loosely coupled INS on a recorded IMU + GNSS drive (see `jaxnav lc --help`)"),
-        ("ins", "GNSS/INS on a recorded IMU log, loose (.pos) or tight (raw UBX observations) "
-                "(see `jaxnav ins --help`)"),
-        ("tune", "fit a car configuration's noise figures to a recorded drive by maximum "
-                 "likelihood (see `jaxnav tune --help`)"),
-        ("tutorial", "copy the tutorial notebook (an outage study end to end) into a folder, "
-                     "as .py and, with jupytext, .ipynb (see `jaxnav tutorial --help`)"),
-    ):
+    for name, text in DELEGATED.items():
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=_delegate(name))
@@ -353,8 +344,18 @@ def main(argv=None) -> int:
         return 2
 
 
-#: Subcommands whose own parser (``jaxnav.apps.NAME.main``) reads the rest of the line.
-DELEGATED = ("ppp", "lc", "ins", "tune", "tutorial")
+#: Subcommands whose own parser (``jaxnav.apps.NAME.main``) reads the rest of the line, and
+#: their one-line help in ``jaxnav --help``.
+DELEGATED = {
+    "ppp": "post-processed PPP on RINEX data (see `jaxnav ppp --help`)",
+    "lc": "loosely coupled INS on a recorded IMU + GNSS drive (see `jaxnav lc --help`)",
+    "ins": "GNSS/INS on a recorded IMU log, loose (.pos) or tight (raw UBX observations) "
+           "(see `jaxnav ins --help`)",
+    "tune": "fit a car configuration's noise figures to a recorded drive by maximum likelihood "
+            "(see `jaxnav tune --help`)",
+    "tutorial": "copy the tutorial notebook (an outage study end to end) into a folder, as .py "
+                "and, with jupytext, .ipynb (see `jaxnav tutorial --help`)",
+}
 
 #: Set when Ctrl-C ended the command (``entry``).
 _interrupted: list = []

@@ -208,7 +208,7 @@ def run(args, cfg: CarConfig, sched: ot.Schedule | None) -> int:
         order = np.argsort(sched.start_s)
         if np.any(sched.start_s[order][1:] < (sched.start_s + sched.length_s)[order][:-1]):
             raise ValueError("the outages of one loose run must not overlap")
-    stage = Stages(getattr(args, "quiet", False))
+    stage = Stages(args.quiet)
     with stage(f"reading the IMU log {Path(args.imu).name} and the GNSS track "
                f"{Path(args.gnss).name}"):
         drive = load_drive(args.imu, args.imu_tag, args.gnss, cfg, duration_s=args.duration)

@@ -86,9 +86,10 @@ def main(argv=None) -> int:
     for path in written:
         print(f"wrote {path}")
     script = next(p for p in written if p.suffix == ".py")
-    if not any(p.suffix == ".ipynb" for p in written):
+    notebook = next((p for p in written if p.suffix == ".ipynb"), None)
+    if notebook is None:
         print("(no .ipynb: jupytext is not installed; pip install \"jaxnav[notebook]\", or open "
               "the .py in Jupyter with jupytext, or run it as a script)")
-    print(f"run it: python {script} [--quick] (writes tutorial_results/ in the current folder), "
-          f"or open {script.with_suffix('.ipynb').name} in Jupyter")
+    print(f"run it: python {script} [--quick] (writes tutorial_results/ in the current folder)"
+          + (f", or open {notebook.name} in Jupyter" if notebook else ""))
     return 0
